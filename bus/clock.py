@@ -1,0 +1,243 @@
+"""Two clocks behind one interface (ARCHITECTURE principle 5).
+
+Participants never sleep: they schedule callbacks on the clock and react to
+samples the clock hands them. All callbacks run on the thread that calls
+:meth:`Clock.run`, one at a time, so participants need no locks.
+
+* :class:`WallClock` follows real time (hardware in the loop).
+* :class:`VirtualClock` is a deterministic discrete-event scheduler: time jumps
+  to the next pending event, and only after every sample published on the bus
+  has been delivered to every local subscriber and handled. Ties are broken by
+  scheduling order, and samples are handled in publish order, so the same
+  scenario and seed give the same frames at the same sim times.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import threading
+import time
+from abc import ABC, abstractmethod
+from typing import Any, Callable
+
+
+class ClockError(RuntimeError):
+    pass
+
+
+class Timer:
+    """Handle of a scheduled callback; ``cancel()`` makes it a no-op."""
+
+    __slots__ = ("t_ns", "fn", "args", "cancelled")
+
+    def __init__(self, t_ns: int, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
+        self.t_ns = t_ns
+        self.fn = fn
+        self.args = args
+        self.cancelled = False
+
+    def cancel(self) -> None:
+        self.cancelled = True
+
+
+class Clock(ABC):
+    """Scheduling interface every participant uses."""
+
+    kind: str = ""
+
+    def __init__(self) -> None:
+        self._heap: list[tuple[int, int, Timer]] = []
+        self._tie = itertools.count()
+        self._lock = threading.Condition()
+        self._inbox: list[tuple[tuple[float, int], Callable[..., Any], tuple[Any, ...]]] = []
+        self._arrivals = itertools.count()
+        self._stopped = False
+        self.error: BaseException | None = None
+
+    # -- time -----------------------------------------------------------------------
+    @abstractmethod
+    def now_ns(self) -> int:
+        """Current time of the run (ns since the clock started)."""
+
+    @staticmethod
+    def wall_ns() -> int:
+        return time.time_ns()
+
+    # -- scheduling (clock thread) -----------------------------------------------------
+    def call_at(self, t_ns: int, fn: Callable[..., Any], *args: Any) -> Timer:
+        timer = Timer(max(int(t_ns), self.now_ns()), fn, args)
+        with self._lock:
+            heapq.heappush(self._heap, (timer.t_ns, next(self._tie), timer))
+            self._lock.notify()
+        return timer
+
+    def call_later(self, delay_ns: int, fn: Callable[..., Any], *args: Any) -> Timer:
+        return self.call_at(self.now_ns() + int(delay_ns), fn, *args)
+
+    # -- input from other threads ---------------------------------------------------------
+    def post(self, fn: Callable[..., Any], *args: Any, order: tuple[float, int] | None = None) -> None:
+        """Thread-safe: run ``fn(*args)`` on the clock thread at the current time.
+        ``order`` sorts items that arrive while the clock settles (publish order)."""
+        with self._lock:
+            key = order if order is not None else (float("inf"), next(self._arrivals))
+            self._inbox.append((key, fn, args))
+            self._lock.notify()
+
+    # -- delivery barrier (used by bus.transport.Bus) --------------------------------------
+    def expect(self, n: int) -> None:
+        """``n`` more samples are on their way to local subscribers."""
+
+    def delivered(self) -> None:
+        """One expected sample has been posted."""
+
+    # -- running ----------------------------------------------------------------------------
+    def stop(self) -> None:
+        with self._lock:
+            self._stopped = True
+            self._lock.notify()
+
+    @property
+    def stopped(self) -> bool:
+        return self._stopped
+
+    def _fire(self, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
+        try:
+            fn(*args)
+        except Exception as exc:  # a participant bug must not hang the run silently
+            self.error = exc
+            self._stopped = True
+            raise
+
+    @abstractmethod
+    def run(self, *, until_ns: int | None = None, until: Callable[[], bool] | None = None,
+            timeout_s: float | None = None) -> None:
+        """Process events until ``until()`` holds, time passes ``until_ns``, nothing is
+        left to do (virtual), ``stop()`` is called, or ``timeout_s`` wall seconds pass."""
+
+
+class VirtualClock(Clock):
+    kind = "virtual"
+
+    def __init__(self, *, barrier_timeout_s: float = 30.0) -> None:
+        super().__init__()
+        self._now = 0
+        self._in_flight = 0
+        self._barrier_timeout_s = barrier_timeout_s
+        self.events_run = 0
+
+    def now_ns(self) -> int:
+        return self._now
+
+    def expect(self, n: int) -> None:
+        if n:
+            with self._lock:
+                self._in_flight += n
+
+    def delivered(self) -> None:
+        with self._lock:
+            self._in_flight -= 1
+            if self._in_flight <= 0:
+                self._lock.notify_all()
+
+    def _settle(self) -> None:
+        """Wait for every sample in flight, then handle the inbox in publish order."""
+        while True:
+            with self._lock:
+                if self._in_flight > 0:
+                    deadline = time.monotonic() + self._barrier_timeout_s
+                    while self._in_flight > 0:
+                        left = deadline - time.monotonic()
+                        if left <= 0:
+                            raise ClockError(f"{self._in_flight} bus samples were published but "
+                                             f"never delivered within {self._barrier_timeout_s} s")
+                        self._lock.wait(left)
+                if not self._inbox:
+                    return
+                batch = sorted(self._inbox, key=lambda item: item[0])
+                self._inbox.clear()
+            for _, fn, args in batch:
+                self._fire(fn, args)
+
+    def run(self, *, until_ns: int | None = None, until: Callable[[], bool] | None = None,
+            timeout_s: float | None = None) -> None:
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        self._stopped = False
+        while True:
+            self._settle()
+            if self._stopped or (until is not None and until()):
+                return
+            if deadline is not None and time.monotonic() > deadline:
+                raise ClockError(f"virtual run did not finish within {timeout_s} wall seconds")
+            with self._lock:
+                while self._heap and self._heap[0][2].cancelled:
+                    heapq.heappop(self._heap)
+                if not self._heap:
+                    if until_ns is not None:
+                        self._now = max(self._now, until_ns)
+                    return
+                t = self._heap[0][0]
+                if until_ns is not None and t > until_ns:
+                    self._now = until_ns
+                    return
+                _, _, timer = heapq.heappop(self._heap)
+                self._now = t
+            self.events_run += 1
+            self._fire(timer.fn, timer.args)
+
+
+class WallClock(Clock):
+    kind = "wall"
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._t0 = time.monotonic_ns()
+
+    def now_ns(self) -> int:
+        return time.monotonic_ns() - self._t0
+
+    def run(self, *, until_ns: int | None = None, until: Callable[[], bool] | None = None,
+            timeout_s: float | None = None) -> None:
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        self._stopped = False
+        while True:
+            with self._lock:
+                batch = self._inbox
+                self._inbox = []
+            for _, fn, args in batch:
+                self._fire(fn, args)
+            if self._stopped or (until is not None and until()):
+                return
+            now = self.now_ns()
+            if until_ns is not None and now >= until_ns:
+                return
+            with self._lock:
+                while self._heap and self._heap[0][2].cancelled:
+                    heapq.heappop(self._heap)
+                due = self._heap[0][2] if self._heap and self._heap[0][0] <= now else None
+                if due is not None:
+                    heapq.heappop(self._heap)
+                elif not self._inbox:
+                    wait = 0.2
+                    if self._heap:
+                        wait = min(wait, (self._heap[0][0] - now) / 1e9)
+                    if until_ns is not None:
+                        wait = min(wait, (until_ns - now) / 1e9)
+                    if deadline is not None:
+                        left = deadline - time.monotonic()
+                        if left <= 0:
+                            return
+                        wait = min(wait, left)
+                    self._lock.wait(max(wait, 0.0))
+            if due is not None:
+                self._fire(due.fn, due.args)
+            elif deadline is not None and time.monotonic() > deadline:
+                return
+
+
+def make_clock(kind: str) -> Clock:
+    if kind == "virtual":
+        return VirtualClock()
+    if kind == "wall":
+        return WallClock()
+    raise ValueError(f"unknown clock {kind!r}: expected 'virtual' or 'wall'")

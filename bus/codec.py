@@ -1,0 +1,391 @@
+"""The wire codec: build and parse every HexBot frame (spec §5, §6, §9, §13).
+
+Each link kind has a grammar: a list of :class:`Template` (fixed head, a number
+of free bytes, fixed tail). :func:`parse` decodes one complete frame; the
+streaming :class:`bus.framer.Framer` uses the same templates, so the grammar is
+written once. Raw bytes are always kept in :attr:`Frame.raw`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import Any, Iterable
+
+from .functions import ARG_UNUSED, FUNCTIONS, Function, lookup
+
+PREAMBLE = b"\n\r\n\r"
+EOL = b"\n\r"
+ROLE_PREFIX = {"S": b"S: ", "M": b"M: "}
+START = b"*"
+END = b"#"
+HANDSHAKE_READY = b"R"
+HANDSHAKE_LISTENING = b"L"
+#: The two bytes ``LCircle`` sends on every side (a probe of the IR link).
+PROBE_BYTES = (0xFF, 0x00)
+
+#: Banner texts, by the firmware routine that prints them.
+BANNERS: dict[str, bytes] = {
+    "CTR_Ready": b"CTR. BOARD READY",
+    "COMM_Ready": b"COMM. BOARD READY",
+    "CTR_LST": b"CTR. LISTENING",
+    "COMM_LST": b"COMM. LISTENING",
+    "LOC": b"LOCALIZED",
+    "RCV": b"RECEIVED",
+}
+PC_FRAME_LEN = 11
+RELAY_FRAME_LEN = 7
+MSG1_LEN = 8
+#: v2 location report body: "POS" id x+128 y+128 yref flags.
+POS_TAG = b"POS"
+COORD_OFFSET = 128
+
+
+class Link(str, Enum):
+    """Kinds of wire. Each has one grammar (and one framer)."""
+
+    PC = "pc"  # centre IR, PC -> modules: 11-byte command frames
+    CENTRE = "centre"  # centre IR, modules -> PC: banners, ACKs, reports
+    SIDE = "side"  # side IR between neighbours: MSG1, LCircle probes
+    UART0_DOWN = "uart0-down"  # comm -> control: 7-byte relay frames, handshake
+    UART0_UP = "uart0-up"  # control -> comm: handshake, code echo
+    DEBUG = "debug"  # control UART1 -> PC terminal
+
+
+class Kind(str, Enum):
+    COMMAND = "command"
+    RELAY = "relay"
+    ECHO = "echo"
+    HANDSHAKE = "handshake"
+    BANNER = "banner"
+    ACK = "ack"
+    DEBUG_MSG = "debug-msg"
+    SIDE_REPORT = "side-report"
+    YREF_REPORT = "yref-report"
+    POSITION = "position"
+    MSG1 = "msg1"
+    PROBE = "probe"
+    NOISE = "noise"
+
+
+@dataclass(frozen=True)
+class Template:
+    """A frame shape: ``head`` bytes, ``n_any`` free bytes, ``tail`` bytes."""
+
+    kind: Kind
+    head: bytes
+    n_any: int = 0
+    tail: bytes = b""
+    label: str = ""  # e.g. the banner name
+
+    @property
+    def length(self) -> int:
+        return len(self.head) + self.n_any + len(self.tail)
+
+
+def _prefixes(role_allowed: bool = True) -> list[bytes]:
+    roles = [b"", ROLE_PREFIX["S"], ROLE_PREFIX["M"], ROLE_PREFIX["S"] + ROLE_PREFIX["M"]]
+    return [pre + r for pre in (b"", PREAMBLE) for r in (roles if role_allowed else [b""])]
+
+
+def _grammar(link: Link) -> tuple[Template, ...]:
+    t: list[Template] = []
+    if link is Link.PC:
+        t.append(Template(Kind.COMMAND, START, PC_FRAME_LEN - 2, END))
+    elif link is Link.UART0_DOWN:
+        t.append(Template(Kind.RELAY, START, RELAY_FRAME_LEN - 2, END))
+        t.append(Template(Kind.HANDSHAKE, HANDSHAKE_READY))
+    elif link is Link.UART0_UP:
+        t.append(Template(Kind.HANDSHAKE, HANDSHAKE_READY))
+        t.append(Template(Kind.HANDSHAKE, HANDSHAKE_LISTENING))
+        t.append(Template(Kind.ECHO, b"", 1))  # any other byte echoes a code
+    elif link is Link.CENTRE:
+        for p in _prefixes():
+            for name, text in BANNERS.items():
+                t.append(Template(Kind.BANNER, p + text + EOL, label=name))
+            t.append(Template(Kind.ACK, p + b"ACK", 1, EOL))
+            t.append(Template(Kind.POSITION, p + POS_TAG, 5, EOL))
+        t.append(Template(Kind.SIDE_REPORT, b"Side: ", 1, EOL))
+        t.append(Template(Kind.YREF_REPORT, b"Yref: ", 1, EOL))
+    elif link is Link.SIDE:
+        for p in _prefixes():
+            t.append(Template(Kind.MSG1, p + START, MSG1_LEN - 1))
+        t.extend(Template(Kind.PROBE, bytes([b])) for b in PROBE_BYTES)
+    elif link is Link.DEBUG:
+        for p in _prefixes(role_allowed=False):
+            for name in ("CTR_Ready", "COMM_Ready", "CTR_LST"):
+                t.append(Template(Kind.BANNER, p + BANNERS[name] + EOL, label=name))
+            t.append(Template(Kind.ACK, p + b"ACK", 1, EOL))
+        t.append(Template(Kind.DEBUG_MSG, b"MSG", 5, EOL))
+    return tuple(t)
+
+
+GRAMMARS: dict[Link, tuple[Template, ...]] = {link: _grammar(link) for link in Link}
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One frame as found on a link: its raw bytes and a decoded view."""
+
+    link: Link
+    kind: Kind
+    raw: bytes
+    view: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def is_noise(self) -> bool:
+        return self.kind is Kind.NOISE
+
+    def describe(self) -> str:
+        """One line for people: ``command MCW i=4 t1=8 t2=4 t3=9``."""
+        v = self.view
+        if self.kind in (Kind.COMMAND, Kind.RELAY):
+            args = " ".join(f"{k}={a}" for k, a in v["args"].items())
+            return f"{self.kind.value} {v['name']} {args}".rstrip()
+        if self.kind is Kind.NOISE:
+            return f"noise {self.raw.hex()} ({v['reason']})"
+        extras = " ".join(f"{k}={_show(a)}" for k, a in v.items())
+        return f"{self.kind.value} {extras}".rstrip()
+
+
+def _show(a: Any) -> str:
+    return repr(a) if isinstance(a, str) else str(a)
+
+
+def _prefix_view(raw: bytes) -> tuple[dict[str, Any], int]:
+    """Parse the optional preamble and role prefix at the start of ``raw``."""
+    view: dict[str, Any] = {"preamble": raw.startswith(PREAMBLE)}
+    i = len(PREAMBLE) if view["preamble"] else 0
+    role = ""
+    for r, text in ROLE_PREFIX.items():
+        if raw.startswith(text, i):
+            role += r
+            i += len(text)
+    view["role"] = role or None
+    return view, i
+
+
+def decode_ack_byte(b: int) -> str:
+    if b == ord("N"):
+        return "unknown code"
+    if b == ord("~"):
+        return "no echo (timeout)"
+    return FUNCTIONS[b].name
+
+
+def _view(link: Link, tpl: Template, raw: bytes) -> dict[str, Any]:
+    k = tpl.kind
+    if k is Kind.COMMAND:
+        fn = FUNCTIONS[raw[1]]
+        return _args_view(fn, raw[2:10])
+    if k is Kind.RELAY:
+        fn = FUNCTIONS[raw[1]]
+        return _args_view(fn, raw[2:6], filler=ARG_UNUSED)
+    if k is Kind.ECHO:
+        return {"code": raw[0], "name": FUNCTIONS[raw[0]].name}
+    if k is Kind.HANDSHAKE:
+        return {"signal": chr(raw[0])}
+    if k is Kind.PROBE:
+        return {"byte": raw[0]}
+    view, i = _prefix_view(raw)
+    if k is Kind.BANNER:
+        view["banner"] = tpl.label
+        view["text"] = raw[i:-len(EOL)].decode("ascii")
+    elif k is Kind.ACK:
+        b = raw[i + 3]
+        view["byte"] = b
+        view["meaning"] = decode_ack_byte(b)
+    elif k is Kind.DEBUG_MSG:
+        body = raw[3:8]
+        view.update(_args_view(FUNCTIONS[body[0]], body[1:], filler=ARG_UNUSED))
+    elif k in (Kind.SIDE_REPORT, Kind.YREF_REPORT):
+        b = raw[6]
+        view["byte"] = b
+        view["value"] = b - ord("0")
+    elif k is Kind.POSITION:
+        ident, x, y, yref, flags = raw[i + 3:i + 8]
+        view.update(id=ident, x=x - COORD_OFFSET, y=y - COORD_OFFSET, yref=yref,
+                    localized=bool(flags & 1), mobile=bool(flags & 2), substrate=bool(flags & 4))
+    elif k is Kind.MSG1:
+        view.update(msg1_view(raw[i:]))
+    return view
+
+
+def _args_view(fn: Function, data: bytes, filler: int | None = None) -> dict[str, Any]:
+    args = {a.name: data[n] for n, a in enumerate(fn.args) if n < len(data)}
+    extra = list(data[len(fn.args):])
+    view: dict[str, Any] = {"code": fn.code, "name": fn.name, "args": args}
+    if any(b not in (0, filler) for b in extra):
+        view["extra"] = extra
+    return view
+
+
+# --- parse -----------------------------------------------------------------------------
+class Match(Enum):
+    FAIL = 0
+    NEED = 1
+    OK = 2
+
+
+def match(tpl: Template, buf: bytes | bytearray, start: int = 0) -> tuple[Match, int]:
+    """Match a template at ``buf[start:]``: (OK, length) / (NEED, bytes known good) / (FAIL, index of mismatch)."""
+    n = len(buf) - start
+    h = len(tpl.head)
+    if n < h:
+        return (Match.NEED, n) if buf[start:] == tpl.head[:n] else (Match.FAIL, _mismatch(buf, start, tpl.head))
+    if buf[start:start + h] != tpl.head:
+        return Match.FAIL, _mismatch(buf, start, tpl.head)
+    tail_at = h + tpl.n_any
+    have = n - tail_at
+    if have < len(tpl.tail):
+        ok = have <= 0 or buf[start + tail_at:] == tpl.tail[:have]
+        return (Match.NEED, n) if ok else (Match.FAIL, tail_at + _mismatch(buf, start + tail_at, tpl.tail))
+    if buf[start + tail_at:start + tpl.length] != tpl.tail:
+        return Match.FAIL, tail_at + _mismatch(buf, start + tail_at, tpl.tail)
+    return Match.OK, tpl.length
+
+
+def _mismatch(buf: bytes | bytearray, start: int, expect: bytes) -> int:
+    for k, e in enumerate(expect):
+        if start + k >= len(buf) or buf[start + k] != e:
+            return k
+    return len(expect)
+
+
+def parse(link: Link | str, raw: bytes) -> Frame:
+    """Decode ``raw`` as exactly one frame of ``link``; anything else is a noise frame."""
+    link = Link(link)
+    best: Template | None = None
+    for tpl in GRAMMARS[link]:
+        m, n = match(tpl, raw)
+        if m is Match.OK and n == len(raw) and (best is None or tpl.length > best.length):
+            best = tpl
+    if best is None:
+        return noise(link, raw, explain(link, raw))
+    return Frame(link, best.kind, bytes(raw), _view(link, best, bytes(raw)))
+
+
+def frame_from_template(link: Link, tpl: Template, raw: bytes) -> Frame:
+    return Frame(link, tpl.kind, bytes(raw), _view(link, tpl, bytes(raw)))
+
+
+def noise(link: Link, raw: bytes, reason: str) -> Frame:
+    return Frame(link, Kind.NOISE, bytes(raw), {"reason": reason})
+
+
+def explain(link: Link, raw: bytes | bytearray) -> str:
+    """Why ``raw`` is not a frame of ``link``: the closest template and where it broke."""
+    best_k, best = -1, None
+    for tpl in GRAMMARS[link]:
+        m, k = match(tpl, raw)
+        if m is Match.OK:
+            k = tpl.length
+        if k > best_k:
+            best_k, best = k, tpl
+    if not raw:
+        return "empty"
+    if best is None or best_k <= 0:
+        return f"byte 0x{raw[0]:02x} does not start a {link.value} frame"
+    if best_k >= best.length:
+        return f"{len(raw) - best.length} bytes after a complete {best.kind.value} frame"
+    if best_k >= len(raw):
+        return f"truncated {best.kind.value} frame ({len(raw)} of {best.length} bytes)"
+    pos = best_k
+    exp = (best.head + bytes(best.n_any) + best.tail)[pos]
+    where = "end" if pos >= len(best.head) + best.n_any else "byte"
+    return (f"{best.kind.value} frame: expected 0x{exp:02x} {where} at offset {pos}, "
+            f"got 0x{raw[pos]:02x}")
+
+
+# --- build -----------------------------------------------------------------------------
+def _arg_bytes(fn: Function, args: Iterable[int] | dict[str, int], width: int, filler: int) -> bytes:
+    if isinstance(args, dict):
+        unknown = set(args) - set(fn.arg_names)
+        if unknown:
+            raise ValueError(f"{fn.name} has no argument {sorted(unknown)}; it takes {fn.arg_names}")
+        vals = [args.get(a.name, filler) for a in fn.args]
+    else:
+        vals = list(args)
+    if len(vals) > width:
+        raise ValueError(f"{fn.name}: {len(vals)} arguments do not fit {width} bytes")
+    for a, v in zip(fn.args, vals):
+        if v != filler:
+            a.check(v)
+    for v in vals:
+        if not 0 <= v <= 255:
+            raise ValueError(f"argument {v} is not a byte")
+    return bytes(vals) + bytes([filler]) * (width - len(vals))
+
+
+def encode_command(fn: str | int | Function, *args: int, **kwargs: int) -> bytes:
+    """PC -> module frame (Table 3-8): ``'*' B1..B9 '#'``; unused bytes are 0."""
+    f = fn if isinstance(fn, Function) else lookup(fn)
+    body = _arg_bytes(f, kwargs if kwargs else args, 8, 0)
+    return START + bytes([f.code]) + body + END
+
+
+def encode_relay(code: int, *args: int) -> bytes:
+    """Comm -> control frame over UART0: ``'*' code a b c d '#'``, unused = 'N'."""
+    return START + bytes([code]) + _arg_bytes(FUNCTIONS[code], args, 4, ARG_UNUSED) + END
+
+
+def role_prefix(mobile: bool, substrate: bool) -> bytes:
+    """The comm board's role prefix: "S: " if S=1, then "M: " if M=1."""
+    return (ROLE_PREFIX["S"] if substrate else b"") + (ROLE_PREFIX["M"] if mobile else b"")
+
+
+def encode_banner(name: str, *, preamble: bool = False, role: bytes = b"") -> bytes:
+    return (PREAMBLE if preamble else b"") + role + BANNERS[name] + EOL
+
+
+def encode_ack(byte: int, *, role: bytes = b"", preamble: bool = True) -> bytes:
+    """Module -> PC acknowledgement: preamble, role, ``"ACK"`` and one byte."""
+    return (PREAMBLE if preamble else b"") + role + b"ACK" + bytes([byte]) + EOL
+
+
+def encode_debug_msg(relay_body: bytes) -> bytes:
+    """Control board's debug ``MSG`` line: the five bytes after '*' of a relay frame."""
+    if len(relay_body) != 5:
+        raise ValueError("a relay body is 5 bytes: code a b c d")
+    return b"MSG" + bytes(relay_body) + EOL
+
+
+def encode_side_report(side: int) -> bytes:
+    return b"Side: " + bytes([(side + ord("0")) & 0xFF]) + EOL
+
+
+def encode_yref_report(yref: int) -> bytes:
+    return b"Yref: " + bytes([(yref + ord("0")) & 0xFF]) + EOL
+
+
+def msg1_digits(x: int, y: int, side: int) -> bytes:
+    """MSG1 after '*': sign, tens, units of X; sign, tens, units of Y; side S.
+    Sign bytes are 0 for non-negative and 1 for negative; digits are raw 0..9."""
+    for v in (x, y):
+        if not -99 <= v <= 99:
+            raise ValueError(f"MSG1 carries coordinates in -99..99, not {v}")
+    if not 1 <= side <= 6:
+        raise ValueError(f"MSG1 side must be 1..6, not {side}")
+    return bytes([int(x < 0), abs(x) // 10, abs(x) % 10, int(y < 0), abs(y) // 10, abs(y) % 10, side])
+
+
+def encode_msg1(x: int, y: int, side: int, *, role: bytes = b"", preamble: bool = True) -> bytes:
+    return (PREAMBLE if preamble else b"") + role + START + msg1_digits(x, y, side)
+
+
+def msg1_view(body: bytes) -> dict[str, Any]:
+    """Decode the 8 bytes ``'*' sx x1 x0 sy y1 y0 S``."""
+    sx, x1, x0, sy, y1, y0, s = body[1:8]
+    sane = all(d <= 9 for d in (x1, x0, y1, y0)) and sx in (0, 1) and sy in (0, 1) and 1 <= s <= 6
+    x = (10 * x1 + x0) * (-1 if sx else 1)
+    y = (10 * y1 + y0) * (-1 if sy else 1)
+    return {"x": x, "y": y, "side": s, "valid": sane}
+
+
+def encode_position(ident: int, x: int, y: int, yref: int, *, localized: bool, mobile: bool,
+                    substrate: bool, role: bytes = b"") -> bytes:
+    """v2 location report: preamble, role, ``"POS"`` id x+128 y+128 yref flags, EOL."""
+    flags = int(localized) | int(mobile) << 1 | int(substrate) << 2
+    return (PREAMBLE + role + POS_TAG
+            + bytes([ident & 0xFF, (x + COORD_OFFSET) & 0xFF, (y + COORD_OFFSET) & 0xFF, yref % 6, flags])
+            + EOL)

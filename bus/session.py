@@ -1,0 +1,74 @@
+"""Opening a zenoh session the hexbench way (ARCHITECTURE principle 7).
+
+Default: an embedded peer bound to loopback only. The first hexbench process on
+a machine listens on the well-known endpoint ``tcp/127.0.0.1:7557``; later ones
+find it taken, listen on a free loopback port and connect to it, so two
+``hexbench`` processes started with no flags find each other. Multicast
+scouting is off (no traffic leaves the machine unless asked).
+
+``--connect``/``--listen`` take zenoh endpoints (``tcp/host:port``) to spread a
+fleet over hosts, and ``--mode router`` runs a router for them.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+import zenoh
+
+WELL_KNOWN = "tcp/127.0.0.1:7557"
+
+
+@dataclass
+class SessionOptions:
+    mode: str = "peer"  # "peer", "client" or "router"
+    connect: list[str] = field(default_factory=list)
+    listen: list[str] = field(default_factory=list)
+    isolated: bool = False  # tests: a private loopback peer that joins nobody
+
+    @classmethod
+    def from_args(cls, args: object) -> "SessionOptions":
+        return cls(mode=getattr(args, "mode", None) or "peer",
+                   connect=list(getattr(args, "connect", None) or []),
+                   listen=list(getattr(args, "listen", None) or []),
+                   isolated=bool(getattr(args, "isolated", False)))
+
+
+def _config(mode: str, listen: list[str], connect: list[str]) -> zenoh.Config:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps(mode))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    if listen:
+        conf.insert_json5("listen/endpoints", json.dumps(listen))
+    if connect:
+        conf.insert_json5("connect/endpoints", json.dumps(connect))
+    return conf
+
+
+def open_session(opts: SessionOptions | None = None) -> zenoh.Session:
+    """Open a session following the defaults above."""
+    opts = opts or SessionOptions()
+    if opts.isolated:
+        return zenoh.open(_config("peer", ["tcp/127.0.0.1:0"], []))
+    if opts.connect or opts.listen or opts.mode != "peer":
+        listen = opts.listen or (["tcp/127.0.0.1:0"] if opts.mode != "client" else [])
+        return zenoh.open(_config(opts.mode, listen, opts.connect))
+    try:
+        return zenoh.open(_config("peer", [WELL_KNOWN], []))
+    except zenoh.ZError:
+        # Someone on this machine already holds the well-known endpoint: join it.
+        return zenoh.open(_config("peer", ["tcp/127.0.0.1:0"], [WELL_KNOWN]))
+
+
+def add_arguments(parser) -> None:  # argparse.ArgumentParser
+    g = parser.add_argument_group("bus (zenoh)")
+    g.add_argument("--connect", action="append", metavar="ENDPOINT",
+                   help="zenoh endpoint to connect to, e.g. tcp/10.0.0.5:7447 (repeatable)")
+    g.add_argument("--listen", action="append", metavar="ENDPOINT",
+                   help="zenoh endpoint to listen on (repeatable)")
+    g.add_argument("--mode", choices=["peer", "client", "router"], default="peer",
+                   help="zenoh mode (default: peer)")
+    g.add_argument("--isolated", action="store_true",
+                   help="private loopback session that joins no other process")
+    g.add_argument("--fleet", default="default", help="fleet name: keys live under hexbot/<fleet>/")

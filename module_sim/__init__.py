@@ -1,0 +1,1 @@
+"""hexbench module_sim."""

@@ -1,0 +1,1 @@
+"""hexbench planner_svc."""
