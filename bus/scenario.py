@@ -94,8 +94,11 @@ def loads(text: str, source: str = "<string>") -> Scenario:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         m = re.search(r"\(at line (\d+), column (\d+)\)", str(exc))
-        where = f"line {m.group(1)}, column {m.group(2)}" if m else "syntax"
-        msg = re.sub(r"\s*\(at line \d+, column \d+\)", "", str(exc))
+        if m:
+            where = f"line {m.group(1)}, column {m.group(2)}"
+        else:  # "(at end of document)": the problem is on the last line
+            where = f"line {max(1, len(text.rstrip().splitlines()))} (end of file)"
+        msg = re.sub(r"\s*\(at (line \d+, column \d+|end of document)\)", "", str(exc))
         raise ScenarioError(f"{source}: {where}: invalid TOML: {msg}") from None
     return _build(data, source, text)
 

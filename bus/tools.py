@@ -36,6 +36,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seconds", type=float, help="stop after this many seconds")
     p.set_defaults(func=cmd_monitor)
 
+    _demo_placeholder(sub)
+
 
 def _hex(words: list[str]) -> bytes:
     text = re.sub(r"0x|[\s:,]", "", " ".join(words), flags=re.I)
@@ -114,3 +116,21 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     finally:
         bus.close()
     return 0
+
+
+def _demo_placeholder(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("demo", help="the end-to-end demo (thesis-6 run, MCAP, rerun replay)")
+    p.set_defaults(func=cmd_demo)
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """Replaced by the full demo once the planner and recorder land (see README)."""
+    try:
+        from recordings.demo import run_demo  # type: ignore[import-not-found]
+    except ImportError:
+        print("hexbench demo: the end-to-end demo (thesis-6 on virtual modules, recorded to MCAP "
+              "and replayed in rerun) is coming. Meanwhile:\n"
+              "  hexbench decode --link pc 2a15040804090000000023\n"
+              "  hexbench scenarios thesis-6")
+        return 0
+    return run_demo(args)

@@ -1,0 +1,55 @@
+"""The hexbench CLI over the contract (acceptance commands of the foundation issue)."""
+
+import subprocess
+import sys
+
+import pytest
+
+from bus.cli import main
+
+
+def run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "bus", *args], capture_output=True, text=True,
+                          timeout=60)
+
+
+def test_help_lists_subcommands():
+    r = run("--help")
+    assert r.returncode == 0
+    for cmd in ("decode", "encode", "scenarios", "monitor"):
+        assert cmd in r.stdout
+
+
+def test_decode_issue_example():
+    r = run("decode", "--link", "pc", "2a15040804090000000023")
+    assert r.returncode == 0 and "MCW" in r.stdout and "i=4 t1=8 t2=4 t3=9" in r.stdout
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["decode", "--link", "pc", "zz"], "not hex"),
+    (["decode", "--link", "nowhere", "00"], "no link 'nowhere'"),
+    (["decode", "--link", "pc", "2a1"], "not hex"),
+])
+def test_decode_bad_input_exits_2(args, needle, capsys):
+    assert main(args) == 2
+    assert needle in capsys.readouterr().err
+
+
+def test_decode_noise_is_reported(capsys):
+    assert main(["decode", "--link", "pc", "ff", "2a15040804090000000023"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith("noise ff") and out[1].startswith("command MCW")
+
+
+def test_encode_then_decode(capsys):
+    assert main(["encode", "SCW", "3", "8", "4", "9"]) == 0
+    hexed = capsys.readouterr().out.strip()
+    assert main(["decode", "--link", "pc", hexed]) == 0
+    assert "SCW i=3 t1=8 t2=4 t3=9" in capsys.readouterr().out
+
+
+def test_scenarios_bad_file_exits_2(tmp_path, capsys):
+    p = tmp_path / "bad.toml"
+    p.write_text("initial = [[0, 0]]\nseed = 'x'\n")
+    assert main(["scenarios", str(p)]) == 2
+    assert "bad.toml: line 2, key 'seed': expected an integer" in capsys.readouterr().err

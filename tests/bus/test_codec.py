@@ -1,0 +1,155 @@
+"""Codec round trips for every frame kind, and decoding against spec §5-§9."""
+
+import pytest
+from hypothesis import given, strategies as st
+
+from bus import codec
+from bus.codec import Kind, Link, parse
+from bus.functions import FUNCTIONS, FunctionCode, lookup, used_codes
+
+byte = st.integers(0, 255)
+roles = st.sampled_from([b"", b"S: ", b"M: "])
+
+
+def test_issue_example_decodes_to_mcw():
+    f = parse("pc", bytes.fromhex("2a15040804090000000023"))
+    assert f.kind is Kind.COMMAND
+    assert f.view["name"] == "MCW"
+    assert f.view["args"] == {"i": 4, "t1": 8, "t2": 4, "t3": 9}
+    assert f.describe() == "command MCW i=4 t1=8 t2=4 t3=9"
+
+
+@given(code=st.sampled_from(used_codes("v2")), data=st.data())
+def test_command_round_trip(code, data):
+    fn = FUNCTIONS[code]
+    args = [data.draw(st.integers(a.lo, a.hi)) for a in fn.args]
+    raw = codec.encode_command(code, *args)
+    assert len(raw) == 11 and raw[0] == ord("*") and raw[-1] == ord("#")
+    f = parse(Link.PC, raw)
+    assert f.kind is Kind.COMMAND and f.raw == raw
+    assert f.view["code"] == code
+    assert list(f.view["args"].values()) == args
+
+
+@given(code=st.sampled_from([c for c in used_codes("v1") if c <= 24]), data=st.data())
+def test_relay_round_trip(code, data):
+    fn = FUNCTIONS[code]
+    args = [data.draw(st.integers(a.lo, a.hi)) for a in fn.args]
+    raw = codec.encode_relay(code, *args)
+    assert len(raw) == 7
+    assert raw[2 + len(args):6] == b"N" * (4 - len(args))  # unused arguments are 'N'
+    f = parse(Link.UART0_DOWN, raw)
+    assert f.kind is Kind.RELAY and list(f.view["args"].values()) == args
+
+
+@given(b=byte, role=roles, pre=st.booleans())
+def test_ack_round_trip(b, role, pre):
+    raw = codec.encode_ack(b, role=role, preamble=pre)
+    f = parse(Link.CENTRE, raw)
+    assert f.kind is Kind.ACK and f.view["byte"] == b
+    assert f.view["preamble"] is pre
+    assert f.view["role"] == (role[:1].decode() or None)
+
+
+def test_ack_meanings():
+    assert parse("centre", codec.encode_ack(ord("N"))).view["meaning"] == "unknown code"
+    assert parse("centre", codec.encode_ack(ord("~"))).view["meaning"] == "no echo (timeout)"
+    assert parse("centre", codec.encode_ack(21)).view["meaning"] == "MCW"
+
+
+@pytest.mark.parametrize("name", list(codec.BANNERS))
+@pytest.mark.parametrize("role", [b"", b"M: ", b"S: "])
+def test_banner_round_trip(name, role):
+    raw = codec.encode_banner(name, preamble=True, role=role)
+    f = parse(Link.CENTRE, raw)
+    assert f.kind is Kind.BANNER and f.view["banner"] == name
+    assert f.view["text"] == codec.BANNERS[name].decode()
+
+
+def test_boot_banner_bytes_match_spec():
+    # spec §5: preamble "\n\r\n\r", role "M: ", then the text and "\n\r"
+    raw = codec.encode_banner("COMM_Ready", preamble=True, role=codec.role_prefix(True, False))
+    assert raw == b"\n\r\n\rM: COMM. BOARD READY\n\r"
+
+
+@given(x=st.integers(-99, 99), y=st.integers(-99, 99), s=st.integers(1, 6), role=roles)
+def test_msg1_round_trip(x, y, s, role):
+    raw = codec.encode_msg1(x, y, s, role=role)
+    f = parse(Link.SIDE, raw)
+    assert f.kind is Kind.MSG1
+    assert (f.view["x"], f.view["y"], f.view["side"], f.view["valid"]) == (x, y, s, True)
+
+
+def test_msg1_firmware_bytes():
+    # Appendix A: LOCMSG1(0,0,0,0,0,1,5) announces (0,1) heard on side 5
+    assert codec.encode_msg1(0, 1, 5, preamble=False) == b"*" + bytes([0, 0, 0, 0, 0, 1, 5])
+    assert codec.encode_msg1(-12, 3, 6, preamble=False) == b"*" + bytes([1, 1, 2, 0, 0, 3, 6])
+
+
+@given(i=st.integers(1, 255), x=st.integers(-99, 99), y=st.integers(-99, 99), r=st.integers(0, 5),
+       loc=st.booleans(), m=st.booleans(), s=st.booleans())
+def test_position_round_trip(i, x, y, r, loc, m, s):
+    raw = codec.encode_position(i, x, y, r, localized=loc, mobile=m, substrate=s)
+    v = parse(Link.CENTRE, raw).view
+    assert (v["id"], v["x"], v["y"], v["yref"], v["localized"], v["mobile"], v["substrate"]) == \
+        (i, x, y, r, loc, m, s)
+
+
+@given(side=st.integers(1, 6), yref=st.integers(0, 5))
+def test_localization_report_lines(side, yref):
+    f = parse(Link.CENTRE, codec.encode_side_report(side))
+    assert f.kind is Kind.SIDE_REPORT and f.view["value"] == side
+    f = parse(Link.CENTRE, codec.encode_yref_report(yref))
+    assert f.kind is Kind.YREF_REPORT and f.view["value"] == yref
+
+
+@given(body=st.binary(min_size=5, max_size=5))
+def test_debug_lines(body):
+    raw = codec.encode_debug_msg(body)
+    f = parse(Link.DEBUG, raw)
+    assert f.kind is Kind.DEBUG_MSG and f.raw == raw and f.view["code"] == body[0]
+    ack = codec.PREAMBLE + b"ACK" + body[:1] + codec.EOL
+    assert parse(Link.DEBUG, ack).view["byte"] == body[0]
+
+
+def test_handshake_and_echo():
+    assert parse("uart0-up", b"R").kind is Kind.HANDSHAKE
+    assert parse("uart0-up", b"L").view == {"signal": "L"}
+    assert parse("uart0-up", bytes([21])).view == {"code": 21, "name": "MCW"}
+    assert parse("uart0-down", b"R").kind is Kind.HANDSHAKE
+
+
+def test_probe_bytes():
+    assert [parse("side", bytes([b])).kind for b in (0xFF, 0x00)] == [Kind.PROBE, Kind.PROBE]
+
+
+@pytest.mark.parametrize("raw,reason", [
+    (b"*" + bytes(9) + b"X", "expected 0x23 end at offset 10"),
+    (b"*12", "truncated command frame"),
+    (b"hello", "does not start a pc frame"),
+])
+def test_noise_reasons(raw, reason):
+    f = parse("pc", raw)
+    assert f.is_noise and reason in f.view["reason"] and f.raw == raw
+
+
+def test_function_table_is_complete_and_consistent():
+    assert FunctionCode.MCW == 21 and lookup("mcw").code == 21 and lookup(21).name == "MCW"
+    unused = [6, 7, 8, 9, 10, 17, 18, 19, 26, 27, 51, 52, 53, 54, 55, 63, 64, 69, 70, 75]
+    assert all(not FUNCTIONS[c].used for c in unused)
+    assert all(FUNCTIONS[c].board.value == "control" for c in (1, 2, 3, 4, 5, 11, 12, 13, 14, 15, 16,
+                                                               20, 21, 22, 23, 24))
+    assert all(FUNCTIONS[c].led_mirror for c in range(1, 25) if FUNCTIONS[c].used)
+    assert FUNCTIONS[42].board.value == "reserved" and FUNCTIONS[126].board.value == "reserved"
+    for f in FUNCTIONS.values():
+        for m in f.led_mirror:  # every mirror names a real comm-board function
+            assert lookup(m).board.value == "comm"
+
+
+def test_encode_rejects_bad_arguments():
+    with pytest.raises(ValueError, match="t1=300"):
+        codec.encode_command("MCW", 1, 300)
+    with pytest.raises(ValueError, match="expected 0..6"):
+        codec.encode_command("IrSel", 9)
+    with pytest.raises(KeyError, match="no function named"):
+        codec.encode_command("Fly", 1)

@@ -1,0 +1,68 @@
+"""Scenario files: built-ins load; bad files say where and what was expected."""
+
+import pytest
+
+from bus.lattice import Cell
+from bus.scenario import ScenarioError, builtin_names, load, loads
+
+BUILTINS = ["thesis-6", "thesis-6-reverse", "thesis-12", "thesis-sim", "pair", "localization"]
+
+
+def test_every_builtin_loads():
+    assert set(BUILTINS) <= set(builtin_names())
+    for name in builtin_names():
+        s = load(name)
+        assert s.modules and len(s.goal) == len(s.modules)
+        assert s.fixed in s.initial and s.fixed in s.goal
+
+
+def test_thesis_fixed_module_rule():
+    # the cell common to I and G with the lowest y, then lowest x
+    assert load("thesis-6").fixed == Cell(1, 0)
+    assert load("thesis-12").fixed == Cell(0, 2)
+    assert load("localization").fixed == Cell(0, 0)
+
+
+def test_issue_example_keys(tmp_path):
+    p = tmp_path / "one-real.toml"
+    p.write_text('name = "one-real"\nprofile = "thesis-2009"\nfixed = [0, 0]\n'
+                 'goal = [[0, 0], [1, 0]]\n[[modules]]\ncell = [0, 0]\nid = 1\nkind = "real"\n'
+                 '[[modules]]\ncell = [1, 0]\nid = 2\n')
+    s = load(p)
+    assert s.profile == "thesis-2009" and s.modules[0].kind == "real" and s.modules[1].kind == "virtual"
+
+
+def test_matrix_and_list_forms_agree():
+    a = loads('initial_matrix = ["1 1", "1 0"]\ngoal = [[0, 0], [0, 1], [1, 1]]')
+    assert set(a.initial) == {Cell(0, 0), Cell(0, 1), Cell(1, 1)}
+
+
+@pytest.mark.parametrize("text,needle", [
+    ('name = "x"\ngoal = [[0, 0]\n', "line 2"),
+    ('profile = "v3"\ninitial = [[0, 0]]', "key 'profile': expected 'v2' or 'thesis-2009', got 'v3'"),
+    ('initial = [[0, 0]]\ngaol = [[0, 0]]', "unknown key 'gaol' (did you mean 'goal'?)"),
+    ('[[modules]]\ncell = [0, "a"]', "key 'modules[0].cell': expected a cell [x, y]"),
+    ('[[modules]]\ncell = [0, 0]\nkind = "robot"', "key 'modules[0].kind': expected 'virtual' or 'real'"),
+    ('[[modules]]\ncell = [0, 0]\nid = 300', "hardware id 1..255"),
+    ('initial = [[0, 0], [1, 0]]\ngoal = [[0, 0]]', "1 goal cells for 2 modules"),
+    ('initial = [[0, 0], [0, 0]]', "share cell (0,0)"),
+    ('initial_matrix = ["1 2"]', "key 'initial_matrix': expected a thesis 0/1 matrix"),
+    ('initial = [[0, 0]]\nfixed = [5, 5]', "key 'fixed': expected the cell of one of the modules"),
+    ('name = "x"', "no modules"),
+])
+def test_bad_scenarios_name_the_problem(text, needle):
+    with pytest.raises(ScenarioError) as exc:
+        loads(text, source="bad.toml")
+    assert "bad.toml" in str(exc.value) and needle in str(exc.value)
+
+
+def test_error_names_the_line(tmp_path):
+    p = tmp_path / "typo.toml"
+    p.write_text('name = "t"\ninitial = [[0, 0]]\n\nprofil = "v2"\n')
+    with pytest.raises(ScenarioError, match=r"typo.toml: line 4, unknown key 'profil'"):
+        load(p)
+
+
+def test_unknown_builtin_suggests():
+    with pytest.raises(ScenarioError, match="did you mean 'thesis-6'"):
+        load("thesis-7")
