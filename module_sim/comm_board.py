@@ -1,0 +1,507 @@
+"""The communication board program (Appendix A, second listing) on an emulated ATmega162.
+
+UART1 (300 baud) reaches one of seven IR transceivers through the CD4051 multiplexer;
+UART0 (4800 baud) talks to the control board. LEDs are active low (Table 3-4). The
+v2 additions (docs/protocol.md) are enabled by the profile.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+from bus import codec
+from bus.clock import Clock
+from bus.functions import ACK_UNKNOWN, FUNCTIONS, Board, FunctionCode as F
+from bus.lattice import Cell, Side, body_to_global
+from bus.pins import IR_SEL_MASK, LED_JOINT, LED_NEG, LED_POS, Pin, fold, ir_select_bits, ir_selected
+from bus.timing import (ECHO_TIMEOUT_TICKS, HANDSHAKE_RETRY_TICKS, LOCALIZE_LISTEN_TICKS,
+                        SUBSTRATE_ACK_DELAY_TICKS, TICK_NS, Baud, byte_time_ns)
+
+from .avr import TIMEOUT, Delay, Mcu, Program, Rx, Tx, Uart
+from .profiles import Profile
+
+_STAR, _R, _L = ord("*"), ord("R"), ord("L")
+#: Relay frames of these functions carry 0, not 'N', as their first argument (Appendix A).
+_ZERO_ARG = {F.JxOpenAll, F.JxCloseAll}
+
+
+def localize_slot_ticks(baud: int) -> int:
+    """v2 localization: one slot carries preamble, role and MSG1 (15 bytes) plus guards."""
+    return math.ceil(15 * byte_time_ns(baud) / TICK_NS) + 3
+
+
+def localize_step_ticks(baud: int) -> int:
+    """v2 localization: a step is 6 listener windows of 6 sender slots."""
+    return 36 * localize_slot_ticks(baud)
+
+
+class CommBoard(Mcu):
+    """Emulates the communication board.
+
+    ``neighbours()`` returns the optical switches: presence of a neighbour on body sides 1..6.
+    """
+
+    def __init__(self, clock: Clock, name: str, profile: Profile, ir_baud: int = Baud.IR,
+                 neighbours: Callable[[], list[bool]] | None = None) -> None:
+        super().__init__(clock, name)
+        self.profile = profile
+        self.uart0 = Uart(self, "uart0", Baud.UART0)
+        self.uart1 = Uart(self, "uart1", ir_baud)
+        self.neighbours = neighbours or (lambda: [False] * 6)
+        # firmware globals
+        self.M, self.S, self.L = 1, 0, 0
+        self.X = self.Y = 0
+        self.Yref = 0
+        # v2 addressing
+        self.id = 0
+        self.selected = True
+        self.addressed = False  # selected by id or cell (not by a broadcast)
+        self.v2_active = False  # a Select has been seen since power-up
+        self.mux_changed_at = 0
+
+    # -- IR multiplexer (Table 3-5) -------------------------------------------------------
+    @property
+    def ir_transceiver(self) -> int | None:
+        return ir_selected(self.port["A"])
+
+    def IrSel(self, i: int) -> None:
+        if not 0 <= i <= 6:
+            return  # the firmware's if-chain ignores other values
+        before = self.ir_transceiver
+        self.write_port("A", (self.port["A"] & ~IR_SEL_MASK) | ir_select_bits(i))
+        if self.ir_transceiver != before:
+            self.mux_changed_at = self.clock.now_ns()
+
+    def accepts_ir(self, transceiver: int, start_ns: int) -> bool:
+        """A byte reaches UART1 only if the mux stayed on its transceiver for the whole byte."""
+        return self.ir_transceiver == transceiver and self.mux_changed_at <= start_ns
+
+    # -- LEDs (Table 3-4, active low) ----------------------------------------------------------
+    def _led(self, pin: Pin, on: bool) -> None:
+        (self.clear_bits if on else self.set_bits)(pin.port, pin.mask)
+
+    def _leds(self, table: dict[int, Pin], on: bool) -> None:
+        for pin in table.values():
+            self._led(pin, on)
+
+    def SideOnP(self, i: int) -> None: self._led(LED_POS[fold(i)], True)
+    def SideOffP(self, i: int) -> None: self._led(LED_POS[fold(i)], False)
+    def SideOnN(self, i: int) -> None: self._led(LED_NEG[fold(i)], True)
+    def SideOffN(self, i: int) -> None: self._led(LED_NEG[fold(i)], False)
+    def JointOn(self, i: int) -> None: self._led(LED_JOINT[fold(i)], True)
+    def JointOff(self, i: int) -> None: self._led(LED_JOINT[fold(i)], False)
+    def SideOnAllP(self) -> None: self._leds(LED_POS, True)
+    def SideOffAllP(self) -> None: self._leds(LED_POS, False)
+    def SideOnAllN(self) -> None: self._leds(LED_NEG, True)
+    def SideOffAllN(self) -> None: self._leds(LED_NEG, False)
+    def JointOnAll(self) -> None: self._leds(LED_JOINT, True)
+    def JointOffAll(self) -> None: self._leds(LED_JOINT, False)
+
+    def LOn(self) -> None:
+        self.SideOnAllP()
+        self.SideOnAllN()
+        self.JointOnAll()
+
+    def LOff(self) -> None:
+        self.SideOffAllP()
+        self.SideOffAllN()
+        self.JointOffAll()
+
+    def _blink_each(self, on, off, n: int, t: int) -> Program:
+        for _ in range(n):
+            for i in range(1, 7):
+                on(i)
+                yield Delay(t)
+                off(i)
+                yield Delay(t)
+
+    def SidePTest(self, n: int, t: int) -> Program:
+        yield from self._blink_each(self.SideOnP, self.SideOffP, n, t)
+
+    def SideNTest(self, n: int, t: int) -> Program:
+        yield from self._blink_each(self.SideOnN, self.SideOffN, n, t)
+
+    def JointTest(self, n: int, t: int) -> Program:
+        yield from self._blink_each(self.JointOn, self.JointOff, n, t)
+
+    def LCircle(self, n: int, t: int) -> Program:
+        for _ in range(n):
+            for i in range(1, 7):
+                self.JointOn(i)
+                yield Delay(t)
+                self.JointOff(i)
+                yield Delay(t)
+                self.IrSel(i)
+                yield Tx(self.uart1, bytes([0xFF]))
+                yield Delay(t)
+                yield Tx(self.uart1, bytes([0x00]))
+                yield Delay(t)
+                self.SideOnN(i)
+                yield Delay(t)
+                self.SideOffN(i)
+                yield Delay(t)
+                self.SideOnP(i)
+                yield Delay(t)
+                self.SideOffP(i)
+                yield Delay(t)
+        self.IrSel(0)
+
+    def LColor(self, n: int, t: int) -> Program:
+        for _ in range(n):
+            for on, off in ((self.JointOnAll, self.JointOffAll), (self.SideOnAllN, self.SideOffAllN),
+                            (self.SideOnAllP, self.SideOffAllP)):
+                on()
+                yield Delay(t)
+                off()
+                yield Delay(t)
+
+    def LFlash1(self, n: int, t: int) -> Program:
+        for _ in range(n):
+            self.SideOnAllN()
+            self.SideOffAllP()
+            yield Delay(t)
+            self.SideOffAllN()
+            self.SideOnAllP()
+            yield Delay(t)
+        self.LOff()
+
+    def LFlash2(self, n: int, t: int) -> Program:
+        for _ in range(n):
+            self.LOn()
+            yield Delay(t)
+            self.LOff()
+            yield Delay(t)
+
+    def LYref(self, i: int) -> Program:
+        if i == 1:
+            self.Yref += 1
+        elif i == 2:
+            self.Yref -= 1
+        self.Yref %= 6
+        s = 2 - self.Yref  # the body side that faces global +Y
+        self.SideOnP(s)
+        self.SideOffN(s)
+        yield Delay(10)
+        self.SideOnN(s)
+        self.SideOffP(s)
+        yield Delay(10)
+        self.SideOffN(s)
+
+    def LMCW(self, i: int, t1: int, t2: int, t3: int) -> Program:
+        self.JointOn(i)
+        self.JointOn(i + 1)
+        yield Delay(t1)
+        self.SideOnN(i)
+        self.SideOnN(i - 1)
+        yield Delay(t2)
+        self.JointOffAll()
+        yield Delay(t3)
+        self.SideOffAllP()
+        self.SideOffAllN()
+
+    def LMCCW(self, i: int, t1: int, t2: int, t3: int) -> Program:
+        self.JointOn(i + 1)
+        yield Delay(t1)
+        self.SideOnN(i)
+        self.SideOnN(i - 1)
+        yield Delay(t2)
+        self.JointOn(i)
+        yield Delay(t3)
+        self.JointOffAll()
+        self.SideOffAllP()
+        self.SideOffAllN()
+
+    def LSCW(self, i: int, t1: int, t2: int, t3: int) -> Program:
+        self.JointOn(i - 1)
+        yield Delay(t1)
+        self.SideOnN(i - 3)
+        self.SideOnP(i - 2)
+        yield Delay(t2)
+        self.JointOn(i - 2)
+        yield Delay(t3)
+        self.JointOffAll()
+        self.SideOffAllP()
+        self.SideOffAllN()
+
+    def LSCCW(self, i: int, t1: int, t2: int, t3: int) -> Program:
+        self.JointOn(i - 3)
+        self.JointOn(i - 4)
+        yield Delay(t1)
+        self.SideOnN(i - 4)
+        (self.SideOnN if self.profile.sccw_both_negative else self.SideOnP)(i - 5)
+        yield Delay(t2)
+        self.JointOffAll()
+        yield Delay(t3)
+        self.SideOffAllP()
+        self.SideOffAllN()
+
+    # -- roles and localization --------------------------------------------------------------
+    @property
+    def role(self) -> bytes:
+        return codec.role_prefix(bool(self.M), bool(self.S))
+
+    def _pre(self) -> Program:
+        yield Tx(self.uart1, codec.PREAMBLE + self.role)
+
+    def Ref(self) -> Program:
+        self.M, self.S, self.L = 0, 1, 1
+        self.X = self.Y = 0
+        self.Yref = 0
+        for _ in range(3):
+            yield from self.LYref(0)
+
+    def Localize(self) -> Program:
+        if self.profile.fixed_side_localize:
+            yield from self._localize_thesis()
+        else:
+            yield from self._localize_v2()
+
+    def _localize_thesis(self) -> Program:
+        u1 = self.uart1
+        if self.L == 1:
+            for _ in range(6):
+                for side, msg in ((2, (0, 0, 0, 0, 0, 1, 5)), (3, (0, 0, 1, 0, 0, 0, 6))):
+                    self.SideOnP(side)
+                    self.SideOnN(side)
+                    self.IrSel(side)
+                    for _ in range(2):
+                        yield Delay(5)
+                        yield from self._pre()
+                        yield Tx(u1, codec.START + bytes(msg))
+                    self.SideOffP(side)
+                    self.SideOffN(side)
+            self.IrSel(0)
+            return
+        msg1 = [0] * 8
+        j = 1
+        while j < 7:
+            self.IrSel(j)
+            self.SideOnP(j)
+            self.SideOnN(j)
+            b = yield Rx(u1, LOCALIZE_LISTEN_TICKS)
+            while b not in (_STAR, TIMEOUT):
+                b = yield Rx(u1, LOCALIZE_LISTEN_TICKS)
+            if b == _STAR:
+                for k in range(1, 8):
+                    msg1[k] = yield Rx(u1)
+                self.X, self.Y = msg1[2], msg1[6]  # the firmware's digits (a defect)
+                self.Yref = (msg1[7] - j) % 6
+                self.L = 1
+                j = 7
+                self.IrSel(0)
+                self.LOff()
+            self.SideOffP(j)  # (j == 7 after success: folds to side 1, as in C)
+            self.SideOffN(j)
+            j += 1
+        if self.L == 1:
+            yield from self._report_localized(msg1[7])
+        else:
+            yield from self.LCircle(1, 5)
+        self.IrSel(0)
+
+    def _report_localized(self, side_heard: int) -> Program:
+        self.IrSel(0)
+        yield from self._pre()
+        yield Tx(self.uart1, codec.encode_banner("LOC"))
+        yield Tx(self.uart1, codec.encode_side_report(side_heard))
+        yield Tx(self.uart1, codec.encode_yref_report(self.Yref))
+        for _ in range(3):
+            yield from self.LYref(0)
+
+    def _localize_v2(self) -> Program:
+        """One step of general localization (Table 4-1, all six sides, optical switches).
+
+        Every module that received the broadcast starts the step at the same instant. Time is
+        cut into 6 listener windows of 6 sender slots: in window w a non-localized module
+        listens on its body side w; in slot s of every window a localized module sends MSG1
+        on its body side s. Only sides with a neighbour are used."""
+        u1 = self.uart1
+        slot = localize_slot_ticks(u1.baud)
+        here = self.neighbours()
+        t0 = self.clock.now_ns()
+
+        def tick_at(k: int) -> int:
+            return math.ceil((k * slot * TICK_NS - (self.clock.now_ns() - t0)) / TICK_NS)
+
+        if self.L == 1:
+            for w in range(6):
+                for s in range(1, 7):
+                    k = 6 * w + s - 1
+                    yield Delay(tick_at(k))
+                    if not here[s - 1]:
+                        continue
+                    g = body_to_global(s, self.Yref)
+                    there = Cell(self.X, self.Y).neighbour(g)
+                    self.IrSel(s)
+                    yield Delay(2)  # more than the 0.38 ms multiplexer gap, and the listener is there
+                    yield from self._pre()
+                    yield Tx(u1, codec.START + codec.msg1_digits(there.x, there.y, Side(g).facing))
+            yield Delay(tick_at(36))
+            self.IrSel(0)
+            return
+        heard = 0
+        for w in range(1, 7):
+            if not here[w - 1]:
+                continue
+            yield Delay(tick_at(6 * (w - 1)))
+            self.IrSel(w)
+            end = 6 * w
+            b = yield Rx(u1, max(1, tick_at(end)))
+            while b not in (_STAR, TIMEOUT):
+                b = yield Rx(u1, max(1, tick_at(end)))
+            if b != _STAR:
+                continue
+            body = []
+            for _ in range(7):
+                body.append((yield Rx(u1, HANDSHAKE_RETRY_TICKS)))
+            v = codec.msg1_view(codec.START + bytes(body))
+            if not v["valid"]:
+                continue
+            self.X, self.Y = v["x"], v["y"]
+            self.Yref = (v["side"] - w) % 6
+            self.L = 1
+            heard = v["side"]
+            break
+        self.IrSel(0)
+        if self.L and heard and not self.v2_active:
+            yield from self._report_localized(heard)  # v1 PCs see the thesis report lines
+
+    # -- the program ----------------------------------------------------------------------------
+    def program(self) -> Program:
+        u0, u1 = self.uart0, self.uart1
+        self.LOff()
+        self.IrSel(0)
+        yield from self._pre()
+        yield Tx(u1, codec.encode_banner("COMM_Ready"))
+        while (yield Rx(u0)) != _R:
+            pass
+        yield from self.LFlash1(3, 10)
+        yield Tx(u1, codec.encode_banner("CTR_Ready"))
+        yield Tx(u0, b"R")
+        while (yield Rx(u0, HANDSHAKE_RETRY_TICKS)) != _L:
+            yield Tx(u0, b"R")
+        if self.profile.addressing:
+            ident = yield Rx(u0, HANDSHAKE_RETRY_TICKS)
+            self.id = 0 if ident == TIMEOUT else ident
+        yield from self.LFlash2(3, 10)
+        yield Tx(u1, codec.encode_banner("CTR_LST"))
+        yield from self.LCircle(1, 5)
+        if self.profile.boot_assumes_yref:
+            self.Yref = 1  # the thesis assumed its test orientation instead of localizing
+        self.IrSel(0)
+        # v2 keeps the banner so a v1 PC sees the same boot; it no longer claims L=1.
+        yield Tx(u1, codec.encode_banner("LOC"))
+        self.IrSel(0)
+        yield from self.LColor(3, 10)
+        yield Tx(u1, codec.encode_banner("COMM_LST"))
+        while True:
+            yield from self.listen()
+
+    def listen(self) -> Program:
+        u1 = self.uart1
+        while (yield Rx(u1)) != _STAR:
+            pass
+        msg = []
+        for _ in range(9):
+            msg.append((yield Rx(u1)))
+        code, args = msg[0], msg[1:]
+        self._substrate_turn = False
+        ack = yield from self.dispatch(code, args)
+        if ack is None:
+            return  # v2: not for us, or a broadcast that nobody acknowledges
+        if self.S or self._substrate_turn:
+            yield Delay(SUBSTRATE_ACK_DELAY_TICKS)  # let the mobile module answer first
+        yield Tx(u1, codec.encode_ack(ack, role=self.role))
+
+    def dispatch(self, code: int, args: list[int]) -> Program:
+        fn = FUNCTIONS[code]
+        if self.profile.addressing:
+            if code == F.Select:
+                self._select(*args[:3])
+                return code if self.addressed else None
+            if code == F.Move:
+                return (yield from self._move(*args[:8]))
+            if not self.selected:
+                return None
+        elif fn.profile != "v1":
+            fn = FUNCTIONS[0]  # a thesis module does not know our codes
+        if fn.board is Board.CONTROL:
+            ack = yield from self.relay(code, args)
+            for mirror in fn.led_mirror:
+                result = getattr(self, mirror)(*args[:len(FUNCTIONS[code].args)])
+                if result is not None:
+                    yield from result
+        elif fn.board is Board.COMM and fn.used:
+            result = getattr(self, fn.name)(*args[:len(fn.args)])
+            ack = code
+            if result is not None:
+                value = yield from result
+                if code in (F.CW, F.CCW):
+                    ack = value
+        else:
+            ack = ACK_UNKNOWN
+        if self.profile.addressing and self.v2_active and not self.addressed:
+            return None  # a broadcast: answers would collide on the centre channel
+        return ack
+
+    def relay(self, code: int, args: list[int]) -> Program:
+        """Send a control-board function over UART0 and wait for its echo (``MSG`` in C)."""
+        fn = FUNCTIONS[code]
+        rargs = [0] if code in _ZERO_ARG else args[:len(fn.args)]
+        yield Tx(self.uart0, codec.encode_relay(code, *rargs))
+        return (yield Rx(self.uart0, ECHO_TIMEOUT_TICKS))
+
+    def _rotate(self, mobile_code: int, substrate_code: int, role_mobile: bool,
+                i: int, t1: int, t2: int, t3: int) -> Program:
+        code = mobile_code if role_mobile else substrate_code
+        ack = yield from self.relay(code, [i, t1, t2, t3])
+        yield from getattr(self, FUNCTIONS[code].led_mirror[0])(i, t1, t2, t3)
+        return ack
+
+    def CW(self, si, st1, st2, st3, mi, mt1, mt2, mt3) -> Program:
+        ack = ACK_UNKNOWN  # C leaves it uninitialised when M = S = 0
+        if self.M == 1:
+            ack = yield from self._rotate(F.MCW, F.SCW, True, mi, mt1, mt2, mt3)
+        if self.S == 1:
+            ack = yield from self._rotate(F.MCW, F.SCW, False, si, st1, st2, st3)
+        return ack
+
+    def CCW(self, si, st1, st2, st3, mi, mt1, mt2, mt3) -> Program:
+        ack = ACK_UNKNOWN
+        if self.M == 1:
+            ack = yield from self._rotate(F.MCCW, F.SCCW, True, mi, mt1, mt2, mt3)
+        if self.S == 1:
+            ack = yield from self._rotate(F.MCCW, F.SCCW, False, si, st1, st2, st3)
+        return ack
+
+    # -- v2 addressing -------------------------------------------------------------------------
+    def _select(self, mode: int, a: int, b: int) -> None:
+        self.v2_active = True
+        if mode == 0:
+            self.selected, self.addressed = True, False
+        elif mode == 1:
+            self.selected = self.addressed = a == self.id
+        elif mode == 2:
+            self.selected = self.addressed = bool(self.L) and (self.X, self.Y) == (
+                a - codec.COORD_OFFSET, b - codec.COORD_OFFSET)
+        elif mode == 3:
+            if a == self.id:
+                self.selected = self.addressed = True
+        else:
+            self.selected = self.addressed = False
+
+    def _move(self, direction, mid, mi, sid, si, t1, t2, t3) -> Program:
+        cw = direction == 1
+        if self.id == mid:
+            return (yield from self._rotate(F.MCW if cw else F.MCCW, 0, True, mi, t1, t2, t3))
+        if self.id == sid:
+            self._substrate_turn = True
+            return (yield from self._rotate(0, F.SCW if cw else F.SCCW, False, si, t1, t2, t3))
+        return None
+
+    def Report(self) -> Program:
+        """v2: id, X, Y, Yref and flags on the centre channel (the ACK follows)."""
+        yield Tx(self.uart1, codec.encode_position(self.id, self.X, self.Y, self.Yref,
+                                                   localized=bool(self.L), mobile=bool(self.M),
+                                                   substrate=bool(self.S), role=self.role))

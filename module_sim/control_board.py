@@ -1,0 +1,187 @@
+"""The control board program (Appendix A, first listing) on an emulated ATmega162.
+
+It drives the joint solenoids and side magnets (Table 3-3), talks to the comm board
+on UART0 and prints to a PC terminal on UART1 (the debug link).
+"""
+
+from __future__ import annotations
+
+from bus import codec
+from bus.clock import Clock
+from bus.functions import FUNCTIONS, Board
+from bus.pins import CONTROL_UART_PINS, DIP_PORT, JOINT, MAGNET_NEG, MAGNET_POS, Pin, fold
+from bus.timing import BOOT_SETTLE_TICKS, HANDSHAKE_RETRY_TICKS, Baud
+
+from .avr import Delay, Mcu, Program, Rx, Tx, Uart
+from .profiles import Profile
+
+_R, _L, _STAR = ord("R"), ord("L"), ord("*")
+_ALL_JOINTS = {p.port: 0 for p in JOINT.values()}
+for _p in JOINT.values():
+    _ALL_JOINTS[_p.port] |= _p.mask
+
+
+def _keep_mask(port: str) -> int:
+    """SxOffAll clears PORTB and PORTD except the UART pins."""
+    return sum(p.mask for p in CONTROL_UART_PINS if p.port == port)
+
+
+class ControlBoard(Mcu):
+    """Emulates the control board. ``dip`` is the DIP switch byte (the hardware id)."""
+
+    def __init__(self, clock: Clock, name: str, profile: Profile, dip: int = 0) -> None:
+        super().__init__(clock, name)
+        self.profile = profile
+        self.pin_in[DIP_PORT] = dip & 0xFF
+        self.uart0 = Uart(self, "uart0", Baud.UART0)
+        self.uart1 = Uart(self, "uart1", Baud.DEBUG)
+        self.executed: list[int] = []  # codes run, for tests and the world
+
+    # -- outputs (Table 3-3) ------------------------------------------------------------
+    def _on(self, pin: Pin) -> None:
+        self.set_bits(pin.port, pin.mask)
+
+    def _off(self, pin: Pin) -> None:
+        self.clear_bits(pin.port, pin.mask)
+
+    def JxOpen(self, i: int) -> None:
+        self._on(JOINT[fold(i)])
+
+    def JxClose(self, i: int) -> None:
+        self._off(JOINT[fold(i)])
+
+    def JxOpenAll(self) -> None:
+        for port, mask in _ALL_JOINTS.items():
+            self.set_bits(port, mask)
+
+    def JxCloseAll(self) -> None:
+        for port, mask in _ALL_JOINTS.items():
+            self.clear_bits(port, mask)
+
+    def SxP(self, i: int) -> None:
+        self._on(MAGNET_POS[fold(i)])
+
+    def SxN(self, i: int) -> None:
+        self._on(MAGNET_NEG[fold(i)])
+
+    def SxOff(self, i: int) -> None:
+        self._off(MAGNET_POS[fold(i)])
+        self._off(MAGNET_NEG[fold(i)])
+
+    def SxOffAll(self) -> None:
+        for port in ("B", "D"):
+            self.write_port(port, self.port[port] & _keep_mask(port))
+
+    def TurnOffAll(self) -> None:
+        self.SxOffAll()
+        self.JxCloseAll()
+
+    # -- timed functions (generators) ------------------------------------------------------
+    def JTest(self, n: int, t: int) -> Program:
+        for _ in range(n):
+            for i in range(1, 7):
+                self.JxOpen(i)
+                yield Delay(t)
+                self.JxClose(i)
+                yield Delay(t)
+
+    def _magnet_test(self, on, n: int, t: int) -> Program:
+        for _ in range(n):
+            for i in range(1, 7):
+                on(i)
+                yield Delay(t)
+                self.SxOff(i)
+                yield Delay(t)
+
+    def SPTest(self, n: int, t: int) -> Program:
+        yield from self._magnet_test(self.SxP, n, t)
+
+    def SNTest(self, n: int, t: int) -> Program:
+        yield from self._magnet_test(self.SxN, n, t)
+
+    def MCW(self, i: int, t1: int, t2: int, t3: int) -> Program:
+        self.JxOpen(i)
+        self.JxOpen(i + 1)
+        yield Delay(t1)
+        self.SxN(i)
+        self.SxN(i - 1)
+        yield Delay(t2)
+        self.JxCloseAll()
+        yield Delay(t3)
+        self.SxOffAll()
+
+    def MCCW(self, i: int, t1: int, t2: int, t3: int) -> Program:
+        self.JxOpen(i + 1)
+        yield Delay(t1)
+        self.SxN(i)
+        self.SxN(i - 1)
+        yield Delay(t2)
+        self.JxOpen(i)
+        yield Delay(t3)
+        self.JxCloseAll()
+        self.SxOffAll()
+
+    def SCW(self, i: int, t1: int, t2: int, t3: int) -> Program:
+        self.JxOpen(i - 1)
+        yield Delay(t1)
+        self.SxN(i - 3)
+        self.SxP(i - 2)
+        yield Delay(t2)
+        self.JxOpen(i - 2)
+        yield Delay(t3)
+        self.JxCloseAll()
+        self.SxOffAll()
+
+    def SCCW(self, i: int, t1: int, t2: int, t3: int) -> Program:
+        self.JxOpen(i - 3)
+        self.JxOpen(i - 4)
+        yield Delay(t1)
+        self.SxN(i - 4)
+        # The firmware energises S(i-5) negative; its own comment (and v2) says positive.
+        (self.SxN if self.profile.sccw_both_negative else self.SxP)(i - 5)
+        yield Delay(t2)
+        self.JxCloseAll()
+        yield Delay(t3)
+        self.SxOffAll()
+
+    # -- the program ----------------------------------------------------------------------------
+    def program(self) -> Program:
+        u0, u1 = self.uart0, self.uart1
+        yield Delay(BOOT_SETTLE_TICKS)  # let the supplies settle
+        self.TurnOffAll()
+        yield from self.JTest(1, 5)  # the joints click once: "ready"
+        yield Tx(u1, codec.PREAMBLE)
+        yield Tx(u1, codec.BANNERS["CTR_Ready"] + codec.EOL)
+        yield Tx(u0, b"R")
+        while (yield Rx(u0, HANDSHAKE_RETRY_TICKS)) != _R:
+            yield Tx(u0, b"R")
+        yield Tx(u1, codec.BANNERS["COMM_Ready"] + codec.EOL)
+        yield Tx(u0, b"L")
+        if self.profile.addressing:
+            # v2: the DIP switches are the module's id; the comm board needs it for Select.
+            yield Tx(u0, bytes([self.pin_in[DIP_PORT]]))
+        yield Tx(u1, codec.BANNERS["CTR_LST"] + codec.EOL)
+        while True:
+            yield from self.listen()
+
+    def listen(self) -> Program:
+        u0, u1 = self.uart0, self.uart1
+        while (yield Rx(u0)) != _STAR:
+            pass
+        msg = []
+        for _ in range(5):
+            msg.append((yield Rx(u0)))
+        yield Tx(u0, bytes([msg[0]]))  # confirm to the comm board: echo the code
+        yield Tx(u1, codec.PREAMBLE)
+        yield Tx(u1, b"ACK" + bytes([msg[0]]) + codec.EOL)
+        yield Tx(u1, codec.encode_debug_msg(bytes(msg)))
+        yield from self.execute(msg[0], msg[1:])
+
+    def execute(self, code: int, args: list[int]) -> Program:
+        fn = FUNCTIONS[code]
+        if fn.board is not Board.CONTROL:
+            return  # the firmware's if-chain simply matches nothing
+        self.executed.append(code)
+        result = getattr(self, fn.name)(*args[:len(fn.args)])
+        if result is not None:
+            yield from result

@@ -1,0 +1,32 @@
+"""A fleet: the world and a virtual module for every virtual module of a scenario."""
+
+from __future__ import annotations
+
+import random
+
+from bus.scenario import Scenario
+from bus.timing import TICK_NS
+from bus.transport import Bus
+
+from .module import VirtualModule
+from .profiles import profile
+from .world import World
+
+
+class Fleet:
+    def __init__(self, bus: Bus, scenario: Scenario, *, profile_name: str | None = None) -> None:
+        self.bus = bus
+        self.scenario = scenario
+        self.profile = profile(profile_name or scenario.profile)
+        self.world = World(bus, scenario)
+        self.modules = {m.id: VirtualModule(bus, m.id, self.profile, ir_baud=scenario.ir_baud)
+                        for m in scenario.modules if m.kind == "virtual"}
+
+    def power_up(self, stagger: bool = True) -> None:
+        """Switch the base on: every module boots, each timer at its own (seeded) phase."""
+        self.world.start()
+        rng = random.Random(self.scenario.seed)
+        now = self.bus.clock.now_ns()
+        for ident in sorted(self.modules):
+            offset = rng.randrange(TICK_NS) if stagger else 0
+            self.bus.clock.call_at(now + offset, self.modules[ident].power_up)

@@ -1,0 +1,140 @@
+"""The world: ground truth of where modules are, their optical switches, and the IR medium.
+
+It publishes poses (``world/pose/<module>``) and optical switches
+(``world/switches/<module>``), and carries IR light: a burst on ``ir/tx/<src>`` is
+forwarded on ``ir/rx/<dst>`` to every transceiver the light reaches —
+
+* the centre transceiver (0) of every module and the PC's, for the centre channel;
+* the neighbour across body side s, on the transceiver of its facing side (Table 4-1,
+  through both modules' orientations), for a side channel.
+
+Two bursts overlapping in time on one receiver collide: both arrive garbled and a
+``collision`` event says who collided and what the receiver got. A seeded bit error
+rate flips bits for fault tests.
+"""
+
+from __future__ import annotations
+
+import json
+import random
+from dataclasses import dataclass
+
+from bus.ir import Burst, garble_message
+from bus.keys import PC, WORLD, module_endpoint
+from bus.lattice import Cell, Side, body_to_global, global_to_body
+from bus.messages import Pose
+from bus.scenario import Scenario
+from bus.transport import Bus
+
+
+@dataclass
+class Body:
+    module: str
+    id: int
+    cell: Cell
+    orientation: int
+    kind: str = "virtual"
+    fixed: bool = False
+
+
+class World:
+    def __init__(self, bus: Bus, scenario: Scenario) -> None:
+        self.bus = bus
+        self.scenario = scenario
+        self.bodies: dict[str, Body] = {}
+        for m in scenario.modules:
+            name = module_endpoint(m.id)
+            self.bodies[name] = Body(name, m.id, m.cell, m.orientation, m.kind, m.cell == scenario.fixed)
+        self.obstacles = set(scenario.obstacles)
+        self._rng = random.Random(scenario.seed)
+        self.ber = scenario.bit_error_rate
+        # receiver (dst, transceiver) -> bytes in flight: [end, start, value, src, burst, index]
+        self._air: dict[tuple[str, int], list[list]] = {}
+        self.collisions = 0
+        bus.subscribe(bus.keys.ir_tx_all, self._on_ir)
+
+    # -- ground truth out ----------------------------------------------------------------------
+    def start(self) -> None:
+        """Publish every pose and optical switch state (at time 0 of the run)."""
+        for b in self.bodies.values():
+            self._publish_pose(b)
+        self.publish_switches()
+
+    def _publish_pose(self, b: Body) -> None:
+        self.bus.put(self.bus.keys.pose(b.module),
+                     Pose(b.module, b.id, b.cell.x, b.cell.y, b.orientation,
+                          self.bus.clock.now_ns(), b.kind, b.fixed).to_json())
+
+    def at(self, cell: Cell) -> Body | None:
+        for b in self.bodies.values():
+            if b.cell == cell:
+                return b
+        return None
+
+    def switches(self, body: Body) -> list[bool]:
+        """Optical switches of a module, in its body frame."""
+        occupied = {b.cell for b in self.bodies.values()}
+        return [body.cell.neighbour(body_to_global(s, body.orientation)) in occupied
+                for s in range(1, 7)]
+
+    def publish_switches(self) -> None:
+        for b in self.bodies.values():
+            self.bus.put_json(f"{self.bus.keys.root}/world/switches/{b.module}",
+                              {"module": b.module, "present": self.switches(b),
+                               "sim_time_ns": self.bus.clock.now_ns()})
+
+    # -- the IR medium -------------------------------------------------------------------------------
+    def _receivers(self, src: str, transceiver: int) -> list[tuple[str, int]]:
+        if src == PC or not src.startswith("m"):
+            return [(b.module, 0) for b in self.bodies.values() if b.kind == "virtual"] \
+                if transceiver == 0 else []
+        me = self.bodies.get(src.split(".")[0])
+        if me is None:
+            return []
+        if transceiver == 0:
+            return [(PC, 0)] + [(b.module, 0) for b in self.bodies.values()
+                                if b.module != me.module and b.kind == "virtual"]
+        g = body_to_global(transceiver, me.orientation)
+        other = self.at(me.cell.neighbour(g))
+        if other is None or other.kind != "virtual":
+            return []
+        return [(other.module, int(global_to_body(Side(g).facing, other.orientation)))]
+
+    def _on_ir(self, key: str, payload: bytes) -> None:
+        b = Burst.from_dict(json.loads(payload))
+        now = self.bus.clock.now_ns()
+        for dst, rx in self._receivers(b.src, b.transceiver):
+            air = self._air.setdefault((dst, rx), [])
+            air[:] = [a for a in air if a[0] > now]
+            values = list(b.data)
+            corrupt = [False] * len(values)
+            garbled: dict[tuple[str, int], tuple[list[int], list[int]]] = {}
+            for i, (start, v) in enumerate(zip(b.starts, b.data)):
+                end = start + b.byte_ns
+                for a in air:
+                    if a[3] != b.src and a[1] < end and start < a[0]:
+                        mixed = a[2] & values[i]
+                        values[i] = mixed
+                        corrupt[i] = True
+                        a[2] = mixed
+                        idx, vals = garbled.setdefault((a[3], a[4]), ([], []))
+                        idx.append(a[5])
+                        vals.append(mixed)
+            if self.ber:
+                for i in range(len(values)):
+                    for bit in range(8):
+                        if self._rng.random() < self.ber:
+                            values[i] ^= 1 << bit
+                            corrupt[i] = True
+            for (src, n), (idx, vals) in garbled.items():
+                self.bus.put(self.bus.keys.ir_rx(dst), garble_message(src, n, dst, idx, vals, b.src))
+            if garbled:
+                self.collisions += 1
+                self.bus.event(WORLD, "collision", receiver=dst, transceiver=rx,
+                               sources=sorted({s for s, _ in garbled} | {b.src}),
+                               received=bytes(values).hex())
+            air.extend([s + b.byte_ns, s, v, b.src, b.burst, i]
+                       for i, (s, v) in enumerate(zip(b.starts, values)))
+            out = Burst(b.src, b.burst, b.transceiver, bytes(values), b.starts, b.byte_ns, dst, rx,
+                        corrupt)
+            self.bus.put(self.bus.keys.ir_rx(dst), out.to_json())

@@ -1,0 +1,135 @@
+"""The PC endpoint: the thesis PC's RS232 converter and central IR transceiver, on the bus.
+
+It sends command frames on the centre channel (as IR bursts at the IR baud rate),
+frames what comes back with the centre-link framer, and lets callers wait for frames
+with timeouts on the run's clock. Real and virtual modules look the same from here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+from bus.codec import Frame, Kind, Link, encode_command, parse
+from bus.framer import Framer
+from bus.functions import Function, lookup
+from bus.ir import IrReceiver, IrTransmitter
+from bus.keys import PC
+from bus.timing import NS_PER_S, byte_time_ns
+from bus.transport import Bus
+
+
+class ExpectTimeout(AssertionError):
+    """Nothing matching arrived in time; the message lists what did arrive."""
+
+
+@dataclass(frozen=True)
+class Received:
+    frame: Frame
+    t_first_ns: int
+    t_last_ns: int
+
+
+class PcEndpoint:
+    def __init__(self, bus: Bus, *, baud: int = 300, name: str = PC) -> None:
+        self.bus = bus
+        self.name = name
+        self.byte_ns = byte_time_ns(baud)
+        self._tx = IrTransmitter(bus.put, bus.keys.ir_tx(name), name)
+        self._framer = Framer(Link.CENTRE)
+        self._rx = IrReceiver(bus.clock, self._on_byte)
+        self._line_free_at = 0
+        self.received: list[Received] = []
+        self.listeners: list[Callable[[Received], None]] = []
+        bus.subscribe(bus.keys.ir_rx(name), self._rx.on_message)
+
+    # -- sending --------------------------------------------------------------------------------
+    def send(self, fn: str | int | Function, *args: int, **kwargs: int) -> int:
+        """Send a command frame by name or code; returns the sim time its last byte ends."""
+        return self.send_raw(encode_command(fn, *args, **kwargs))
+
+    def send_raw(self, data: bytes) -> int:
+        now = self.bus.clock.now_ns()
+        start = max(now, self._line_free_at)
+        starts = [start + k * self.byte_ns for k in range(len(data))]
+        self._line_free_at = starts[-1] + self.byte_ns if data else start
+        self._tx.send(0, data, starts, self.byte_ns)
+        f = Framer(Link.PC)
+        for t in f.feed(data) + f.flush():
+            self.bus.clock.call_at(self._line_free_at, self._publish, t.frame, start)
+        return self._line_free_at
+
+    def _publish(self, frame: Frame, first: int) -> None:
+        self.bus.publish_frame(frame, src=self.name, dst="*", first_byte_ns=first, channel=0)
+
+    # -- receiving --------------------------------------------------------------------------------
+    def _on_byte(self, transceiver: int, byte: int, start: int, corrupt: bool) -> None:
+        end = start + self.byte_ns
+        for t in self._framer.feed(byte, end):
+            r = Received(t.frame, t.t_first_ns - self.byte_ns, t.t_last_ns)
+            if t.frame.is_noise:
+                self.bus.event(self.name, "rx-noise", raw=t.frame.raw.hex(),
+                               reason=t.frame.view["reason"])
+            self.received.append(r)
+            for cb in self.listeners:
+                cb(r)
+
+    def flush(self) -> None:
+        """Treat a silence as the end of whatever partial frame is pending."""
+        for t in self._framer.flush():
+            self.received.append(Received(t.frame, t.t_first_ns - self.byte_ns, t.t_last_ns))
+
+    # -- waiting -----------------------------------------------------------------------------------
+    def expect(self, match: Callable[[Frame], bool] | str | None = None, *, timeout_s: float = 10.0,
+               since: int | None = None, **fields: object) -> Received:
+        """Run the clock until a frame received after ``since`` (index into ``received``, default:
+        now) matches, or ``timeout_s`` of run time passes.
+
+        ``match`` is a predicate, or a frame kind (``"ack"``, ``"banner"``...); keyword fields
+        compare with the decoded view (``expect("ack", byte=21)``, ``expect("banner", banner="LOC")``).
+        """
+        start = len(self.received) if since is None else since
+        pred = _predicate(match, fields)
+        clock = self.bus.clock
+        deadline = clock.now_ns() + int(timeout_s * NS_PER_S)
+        found: list[Received] = []
+
+        def done() -> bool:
+            while len(found) == 0 and self._scan < len(self.received):
+                r = self.received[self._scan]
+                self._scan += 1
+                if pred(r.frame):
+                    found.append(r)
+            return bool(found)
+
+        self._scan = start
+        clock.run(until=done, until_ns=deadline)
+        if not found:
+            seen = [r.frame.describe() for r in self.received[start:]]
+            raise ExpectTimeout(f"no frame matching {match!r} {fields or ''} within {timeout_s} s of "
+                                f"run time; received: {seen or 'nothing'}")
+        return found[0]
+
+    def ack(self, fn: str | int, *args: int, timeout_s: float = 10.0) -> Received:
+        """Send a command and wait for its ACK line."""
+        mark = len(self.received)
+        self.send(fn, *args)
+        return self.expect("ack", since=mark, timeout_s=timeout_s)
+
+
+def _predicate(match: Callable[[Frame], bool] | str | None, fields: dict) -> Callable[[Frame], bool]:
+    if callable(match):
+        base = match
+    elif match is None:
+        base = lambda f: True  # noqa: E731
+    else:
+        kind = Kind(match)
+        base = lambda f: f.kind is kind  # noqa: E731
+    return lambda f: base(f) and all(f.view.get(k) == v for k, v in fields.items())
+
+
+def parse_centre(raw: bytes) -> Frame:
+    return parse(Link.CENTRE, raw)
+
+
+__all__ = ["ExpectTimeout", "PcEndpoint", "Received", "lookup"]
