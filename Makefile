@@ -16,7 +16,7 @@ demo: $(STAMP)
 	$(VENV)/bin/hexbench demo
 
 test: $(STAMP)
-	$(PY) -m pytest -q tests --ignore=tests/benchmarks
+	$(PY) -m pytest -q tests module_sim/conformance --ignore=tests/benchmarks
 
 bench: $(STAMP)
 	$(PY) -m pytest -q -s tests/benchmarks

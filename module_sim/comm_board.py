@@ -405,6 +405,19 @@ class CommBoard(Mcu):
         msg = []
         for _ in range(9):
             msg.append((yield Rx(u1)))
+        if self.profile.addressing:
+            # v2 reads the '#' too; a frame that does not end in '#' was garbage with a '*'
+            # in it: resynchronise on the next '*' inside what was read.
+            end = yield Rx(u1)
+            while end != ord("#"):
+                tail = msg + [end]
+                if _STAR not in tail:
+                    return
+                k = tail.index(_STAR)
+                msg = tail[k + 1:]
+                while len(msg) < 9:
+                    msg.append((yield Rx(u1)))
+                end = yield Rx(u1)
         code, args = msg[0], msg[1:]
         self._substrate_turn = False
         ack = yield from self.dispatch(code, args)

@@ -1,0 +1,635 @@
+"""Physics of a HexBot rotation: actuator timelines in, moves (or refusals) out.
+
+Pure and deterministic: no clocks, no bus. The World feeds every module's actuator
+state changes (body frame, with their sim time) to a :class:`MotionJudge` and publishes
+what it returns. The rules are explained, with their reasons, in ``docs/physics.md``;
+in short:
+
+* **Latches.** Each vertex of a module carries one pull-type solenoid (the male pin).
+  The pin at vertex ``k`` latches into the female connector of the neighbour across
+  side ``k-1`` -- the side that *ends* at that vertex. A shared edge therefore has two
+  latches, one at each of its vertices, one owned by each module. A latch holds unless
+  its owner energises (opens) that solenoid. This is the only convention under which
+  every solenoid the Appendix A firmware opens in MCW/MCCW/SCW/SCCW has a purpose.
+* **Drive.** A module whose two sides next to one vertex ``P`` are both negative is
+  trying to rotate about ``P``. The rotation is *driven* while: it is not the fixed
+  module; an immobile module (the substrate) touches ``P``; Table 4-3's goal and sweep
+  cells are free; the substrate's side facing the mobile is negative (repulsion) and
+  its other side at ``P`` positive (attraction); and every latch between the mobile and
+  any neighbour is released except the one at ``P`` (the pin on the rotation axis: a
+  hinge, allowed either way).
+* **Timing.** The drive must hold for :data:`BREAKAWAY_NS` (3 ticks) to break the
+  mobile away; after that the move is committed, its goal and sweep cells reserved.
+  The attraction (mobile pair negative, substrate attract side positive) must last
+  :data:`CARRY_NS` (10 ticks) from the drive start, else the module stalls (a
+  :class:`Fault`, it falls back). The module reaches the goal :data:`ROTATION_NS`
+  (120 degrees at 9.52 rad/s, ~220 ms) after the drive started.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import Any, Iterable, NamedTuple, Sequence, Union
+
+from bus.lattice import Cell, Direction, Joint, MoveRule, Side, move_rule
+from bus.timing import NS_PER_S, TICK_NS
+
+# --- constants -----------------------------------------------------------------------
+#: Angular speed of a rotation (§3.2.4).
+ANGULAR_SPEED_RAD_S = 9.52
+#: A move turns the module by 120 degrees about the pivot vertex.
+ROTATION_RAD = 2 * math.pi / 3
+#: Time from drive start to arrival in the goal cell: 2.094 rad / 9.52 rad/s = 220 ms.
+ROTATION_NS = round(ROTATION_RAD / ANGULAR_SPEED_RAD_S * NS_PER_S)
+#: Repulsion with the latches released must last this long to break the mobile away.
+#: The firmware's shortest phase with magnets on and latches released is t2 = 4 ticks;
+#: ``DelayXts(4)`` may last only a little over 3 ticks (the first tick can come right
+#: after ``ts = 0``), so 3 ticks is the largest threshold every thesis timing passes.
+BREAKAWAY_NS = 3 * TICK_NS
+#: The attraction must act until the mobile is about half-way (60 degrees take 110 ms at
+#: 9.52 rad/s), where the attracting side takes over. The thesis estimates magnets on
+#: "nearly 100 ms"; the firmware keeps them t2 + t3 = 13 ticks. 10 ticks, tick-rounded.
+CARRY_NS = 10 * TICK_NS
+
+#: Magnet states in :class:`bus.messages.Actuators`.
+MAG_OFF, MAG_POS, MAG_NEG, MAG_BOTH = 0, 1, -1, 2
+
+
+@dataclass(frozen=True)
+class PhysicsParams:
+    """Timing thresholds of the motion model (defaults justified above)."""
+
+    rotation_ns: int = ROTATION_NS
+    breakaway_ns: int = BREAKAWAY_NS
+    carry_ns: int = CARRY_NS
+
+    def __post_init__(self) -> None:
+        if not 0 < self.breakaway_ns <= self.carry_ns <= self.rotation_ns:
+            raise ValueError("need 0 < breakaway_ns <= carry_ns <= rotation_ns")
+
+
+# --- geometry of a rotation ---------------------------------------------------------
+def rotation_degrees(direction: Direction | str) -> float:
+    """Signed rotation angle of a move (positive = counter-clockwise, as in
+    :func:`bus.lattice.rotate_about_vertex`). Table 4-3's CW is geometric clockwise."""
+    return -120.0 if Direction(direction) is Direction.CW else 120.0
+
+
+def orientation_after(orientation: int, direction: Direction | str) -> int:
+    """Orientation after a move. Sides are numbered clockwise, so turning the body
+    120 degrees clockwise carries body side s from global side g to g + 2."""
+    step = 2 if Direction(direction) is Direction.CW else -2
+    return (orientation + step) % 6
+
+
+def substrate_cell(mobile: Cell, pivot: Joint | int, direction: Direction | str) -> Cell:
+    """Where the substrate sits: across side j for CW, across side j-1 for CCW
+    (the two cells touching vertex j besides the mobile's own)."""
+    j = Joint.of(pivot)
+    side = j if Direction(direction) is Direction.CW else j - 1
+    return mobile.neighbour(side)
+
+
+def latch_joint(side: int) -> Joint:
+    """The solenoid (vertex) whose pin latches a module to its neighbour across
+    ``side``: the vertex where the side ends (side k runs from joint k to joint k+1)."""
+    return Joint.of(side + 1)
+
+
+class RotationArgs(NamedTuple):
+    """Arguments ``mi`` (mobile) and ``si`` (substrate) of MCW/SCW, MCCW/SCCW and of
+    the combined codes CW (67) and CCW (68)."""
+
+    mi: int
+    si: int
+
+
+def rotation_arguments(rule: MoveRule, mobile_orientation: int,
+                       substrate_orientation: int) -> RotationArgs:
+    """The (mi, si) that make the firmware perform the Table 4-3 move ``rule``.
+
+    Both are the global pivot joint j written in each module's own body frame:
+    ``mi = j - o_mobile``, ``si = j - o_substrate`` (folded into 1..6). Then
+    MCW/MCCW(mi) energise the mobile's body sides mi-1, mi (global j-1, j: both sides at
+    the pivot); SCW(si) repels with body side si-3 = global j+3 (facing the mobile across
+    its side j) and attracts with si-2 = global j+4; SCCW(si) repels with si-4 = global
+    j+2 (facing the mobile across its side j-1) and attracts with si-5 = global j+1.
+    """
+    j = int(rule.joint)
+    return RotationArgs(int(Joint.of(j - mobile_orientation)),
+                        int(Joint.of(j - substrate_orientation)))
+
+
+# --- outcomes -----------------------------------------------------------------------
+class Reason(str, Enum):
+    """Why a move was refused or a fault raised (``MoveRefused.reason``)."""
+
+    FIXED_MODULE = "fixed-module"
+    BOTH_RELAYS = "both-relays"
+    SUPPORTING_MOVE = "supporting-move"
+    MISSING_SUBSTRATE = "missing-substrate"
+    SUBSTRATE_MOVING = "substrate-moving"
+    GOAL_OCCUPIED = "goal-occupied"
+    SWEEP_OCCUPIED = "sweep-occupied"
+    WRONG_POLARITY = "wrong-polarity"
+    NO_ATTRACTION = "no-attraction"
+    NEIGHBOUR_LATCHED = "neighbour-latched"
+    TOO_SHORT = "too-short"
+    STALLED = "stalled"
+
+
+@dataclass(frozen=True)
+class MoveStarted:
+    """The mobile broke away at ``t_ns``; the rotation began at ``started_ns``."""
+
+    module: str
+    t_ns: int
+    started_ns: int
+    from_cell: Cell
+    to_cell: Cell
+    pivot_joint_global: Joint
+    direction: Direction
+    substrate: str
+
+
+@dataclass(frozen=True)
+class MoveCompleted:
+    """The module arrived in ``to_cell`` at ``t_ns``. ``participants``: the mobile, the
+    substrate and the mobile's other neighbours when it started (energy attribution)."""
+
+    module: str
+    t_ns: int
+    started_ns: int
+    from_cell: Cell
+    to_cell: Cell
+    pivot_joint_global: Joint
+    direction: Direction
+    orientation_before: int
+    orientation_after: int
+    substrate: str
+    participants: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class MoveRefused:
+    """An attempt (a negative magnet pair) ended without a move; ``reason`` is the
+    furthest check the attempt failed (see docs/physics.md)."""
+
+    module: str
+    t_ns: int
+    reason: Reason
+    detail: str
+    data: dict[str, Any] = field(default_factory=dict, compare=False)
+
+
+@dataclass(frozen=True)
+class Fault:
+    """A physical fault: both relays of a side on, or a rotation stalled half-way."""
+
+    module: str
+    t_ns: int
+    reason: Reason
+    detail: str
+    data: dict[str, Any] = field(default_factory=dict, compare=False)
+
+
+Outcome = Union[MoveStarted, MoveCompleted, MoveRefused, Fault]
+
+
+# --- the judge ----------------------------------------------------------------------
+@dataclass(frozen=True)
+class ModuleSpec:
+    """A module's initial pose: ``orientation`` is Yref (global side = body side + o)."""
+
+    id: str
+    cell: Cell
+    orientation: int = 0
+    fixed: bool = False
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """A geometrically possible move for an attempt (what the drive would do)."""
+
+    rule: MoveRule
+    substrate: str
+    goal: Cell
+    sweep: tuple[Cell, ...]
+    repel_body: Side  # substrate body side facing the mobile
+    attract_body: Side  # substrate body side at the pivot facing the goal
+
+
+@dataclass
+class _Attempt:
+    """A module showing a negative pair at body joint ``pivot_body``."""
+
+    pivot_body: Joint
+    opened_ns: int
+    done: bool = False  # moved, or superseded: no refusal when it closes
+    drive_since: int | None = None
+    plan: _Plan | None = None
+    best: tuple[int, Reason, str, dict[str, Any]] | None = None  # (rank, ...) furthest failure
+
+
+@dataclass
+class _Flight:
+    module: str
+    started_ns: int
+    plan: _Plan
+    from_cell: Cell
+    pivot_body: Joint
+    participants: tuple[str, ...]
+    carried: bool = False
+
+
+@dataclass
+class _Module:
+    id: str
+    cell: Cell
+    orientation: int
+    fixed: bool
+    joints_open: tuple[bool, ...] = (False,) * 6
+    magnets: tuple[int, ...] = (0,) * 6
+    attempts: dict[Joint, _Attempt] = field(default_factory=dict)
+
+    def magnet(self, global_side: int) -> int:
+        return self.magnets[Side.of(global_side - self.orientation) - 1]
+
+    def body_side(self, global_side: int) -> Side:
+        return Side.of(global_side - self.orientation)
+
+    def solenoid_open(self, global_joint: int) -> bool:
+        return self.joints_open[Joint.of(global_joint - self.orientation) - 1]
+
+
+def negative_pairs(magnets: Sequence[int]) -> list[Joint]:
+    """Body joints k whose two sides (k-1, k) are both negative (or faulty, so that a
+    relay fight on a mobile side is diagnosed rather than ignored)."""
+    neg = [m in (MAG_NEG, MAG_BOTH) for m in magnets]
+    return [k for k in Joint if neg[Side.of(k - 1) - 1] and neg[k - 1]]
+
+
+# Ranks: how far an evaluation got. A refusal reports the furthest failure.
+_R_FIXED, _R_BOTH_MOBILE, _R_SUPPORT, _R_SUBSTRATE, _R_SUB_MOVING, _R_GOAL, _R_SWEEP, \
+    _R_BOTH_SUB, _R_REPEL_OFF, _R_REPEL_WRONG, _R_ATTRACT_OFF, _R_ATTRACT_NEG, _R_LATCH, \
+    _R_TOO_SHORT = range(14)
+
+
+class MotionJudge:
+    """Turns actuator timelines into moves, refusals and faults (the World's physics).
+
+    Call :meth:`on_actuators` for every actuator change, in non-decreasing sim time
+    over all modules, and :meth:`advance` when the clock moves without a change (the
+    next instant anything can happen is :meth:`next_deadline`). Both return the
+    outcomes that became due, in time order.
+    """
+
+    def __init__(self, modules: Iterable[ModuleSpec], obstacles: Iterable[Cell] = (),
+                 params: PhysicsParams = PhysicsParams()) -> None:
+        self.params = params
+        self.obstacles = frozenset(obstacles)
+        self._mods: dict[str, _Module] = {}
+        self._at: dict[Cell, str] = {}
+        for spec in modules:
+            if spec.id in self._mods:
+                raise ValueError(f"module {spec.id!r} listed twice")
+            if spec.cell in self._at or spec.cell in self.obstacles:
+                raise ValueError(f"module {spec.id!r}: cell {spec.cell} is not free")
+            self._mods[spec.id] = _Module(spec.id, spec.cell, spec.orientation % 6, spec.fixed)
+            self._at[spec.cell] = spec.id
+        self._flights: dict[str, _Flight] = {}
+        self._reserved: dict[Cell, str] = {}  # goal and sweep cells of moves in flight
+        self._now = 0
+
+    # --- queries ------------------------------------------------------------------
+    @property
+    def now_ns(self) -> int:
+        return self._now
+
+    def cell(self, module: str) -> Cell:
+        return self._mods[module].cell
+
+    def orientation(self, module: str) -> int:
+        return self._mods[module].orientation
+
+    def is_fixed(self, module: str) -> bool:
+        return self._mods[module].fixed
+
+    def occupancy(self) -> dict[Cell, str]:
+        """Cell -> module for every module (in flight: its start cell)."""
+        return dict(self._at)
+
+    def in_flight(self) -> dict[str, Cell]:
+        """Module -> goal cell for every move in progress."""
+        return {m: f.plan.goal for m, f in self._flights.items()}
+
+    def latched_neighbours(self, module: str) -> list[dict[str, Any]]:
+        """Every latch that currently holds ``module`` to a neighbour."""
+        return self._latches(self._mods[module], exempt_vertex=None)
+
+    def next_deadline(self) -> int | None:
+        """The next sim time at which an outcome can fall due without an actuator change."""
+        times = [t for t, _, _ in self._deadlines()]
+        return min(times) if times else None
+
+    # --- input --------------------------------------------------------------------
+    def on_actuators(self, module: str, t_ns: int, joints_open: Sequence[bool],
+                     magnets: Sequence[int]) -> list[Outcome]:
+        """One module's new actuator state (body frame J1..J6, S1..S6) at ``t_ns``."""
+        if module not in self._mods:
+            raise KeyError(f"unknown module {module!r}")
+        if len(joints_open) != 6 or len(magnets) != 6:
+            raise ValueError("need six joints and six magnets")
+        if any(m not in (MAG_OFF, MAG_POS, MAG_NEG, MAG_BOTH) for m in magnets):
+            raise ValueError(f"magnet values must be -1, 0, 1 or 2: {list(magnets)}")
+        out = self.advance(t_ns)
+        mod = self._mods[module]
+        old_mag = mod.magnets
+        mod.joints_open = tuple(bool(j) for j in joints_open)
+        mod.magnets = tuple(int(m) for m in magnets)
+        for s in Side:  # a relay fight is reported the moment it starts
+            if mod.magnets[s - 1] == MAG_BOTH and old_mag[s - 1] != MAG_BOTH:
+                out.append(Fault(module, t_ns, Reason.BOTH_RELAYS,
+                                 f"{module}: both relays of body side {int(s)} on",
+                                 {"body_side": int(s)}))
+        self._update_attempts(mod, out)
+        self._check_carry(out)
+        self._evaluate_all(out)
+        return out
+
+    def advance(self, t_ns: int) -> list[Outcome]:
+        """Let sim time reach ``t_ns``: break-aways, carries and arrivals that fall due."""
+        if t_ns < self._now:
+            raise ValueError(f"time went backwards: {t_ns} < {self._now}")
+        out: list[Outcome] = []
+        while True:
+            due = [d for d in self._deadlines() if d[0] <= t_ns]
+            if not due:
+                break
+            when, kind, key = min(due, key=lambda d: (d[0], d[1], d[2]))
+            self._now = when
+            if kind == 0:
+                self._complete(self._flights[key], out)
+            elif kind == 1:
+                self._flights[key].carried = True
+            else:
+                mid, pj = key.split("/")
+                self._break_away(self._mods[mid], Joint(int(pj)), out)
+            self._evaluate_all(out)
+        self._now = t_ns
+        return out
+
+    # --- internals ----------------------------------------------------------------
+    def _deadlines(self) -> list[tuple[int, int, str]]:
+        """(time, kind, key); kind 0 arrival, 1 carry, 2 break-away (that order at ties:
+        an arrival frees cells before anyone else commits to them)."""
+        p = self.params
+        out = []
+        for f in self._flights.values():
+            out.append((f.started_ns + p.rotation_ns, 0, f.module))
+            if not f.carried:
+                out.append((f.started_ns + p.carry_ns, 1, f.module))
+        for m in self._mods.values():
+            for a in m.attempts.values():
+                if a.drive_since is not None and not a.done:
+                    out.append((a.drive_since + p.breakaway_ns, 2, f"{m.id}/{int(a.pivot_body)}"))
+        return out
+
+    def _update_attempts(self, mod: _Module, out: list[Outcome]) -> None:
+        pairs = set(negative_pairs(mod.magnets))
+        for k in list(mod.attempts):
+            if k not in pairs:  # the pair went off: the attempt is over
+                a = mod.attempts.pop(k)
+                if not a.done:
+                    out.append(self._refusal(mod, a))
+        for k in pairs - set(mod.attempts):
+            # a pair appearing while the module is in flight is not a new attempt
+            mod.attempts[k] = _Attempt(k, self._now, done=mod.id in self._flights)
+
+    def _refusal(self, mod: _Module, a: _Attempt) -> MoveRefused:
+        if a.best is None:  # never evaluated (opened and closed at the same instant)
+            return MoveRefused(mod.id, self._now, Reason.TOO_SHORT,
+                               f"{mod.id}: magnet pair at body joint {int(a.pivot_body)} "
+                               "on for no time", {"held_ns": 0})
+        _, reason, detail, data = a.best
+        return MoveRefused(mod.id, self._now, reason, detail, data)
+
+    def _evaluate_all(self, out: list[Outcome]) -> None:
+        for mod in self._mods.values():
+            if mod.id in self._flights:
+                continue
+            for a in mod.attempts.values():
+                if a.done:
+                    continue
+                ok, rank, reason, detail, data, plan = self._evaluate(mod, a.pivot_body)
+                if ok:
+                    if a.drive_since is None:
+                        a.drive_since = self._now
+                    a.plan = plan
+                    continue
+                if a.drive_since is not None:  # the drive broke before break-away
+                    held = self._now - a.drive_since
+                    a.drive_since = None
+                    if held > 0:
+                        self._note(a, _R_TOO_SHORT, Reason.TOO_SHORT,
+                                   f"{mod.id}: drive held {held / 1e6:.1f} ms < break-away "
+                                   f"{self.params.breakaway_ns / 1e6:.1f} ms (then {reason.value})",
+                                   {"held_ns": held, "breakaway_ns": self.params.breakaway_ns,
+                                    "then": reason.value})
+                self._note(a, rank, reason, detail, data)
+
+    @staticmethod
+    def _note(a: _Attempt, rank: int, reason: Reason, detail: str, data: dict[str, Any]) -> None:
+        if a.best is None or rank > a.best[0]:  # ties keep the first: the clearest moment
+            a.best = (rank, reason, detail, data)
+
+    def _occupant(self, cell: Cell) -> str | None:
+        """What blocks ``cell``: a module id, ``"obstacle"``, or a reservation."""
+        if cell in self._at:
+            return self._at[cell]
+        if cell in self.obstacles:
+            return "obstacle"
+        if cell in self._reserved:
+            return f"reserved by {self._reserved[cell]} in flight"
+        return None
+
+    def _evaluate(self, mod: _Module, pivot_body: Joint
+                  ) -> tuple[bool, int, Reason, str, dict[str, Any], _Plan | None]:
+        """Is the rotation about ``pivot_body`` driven right now? (ok, rank, reason, ...)."""
+        j = Joint.of(pivot_body + mod.orientation)
+        name = mod.id
+
+        def fail(rank: int, reason: Reason, detail: str, **data: Any):
+            data.setdefault("pivot_joint_global", int(j))
+            return False, rank, reason, f"{name}: {detail}", data, None
+
+        if mod.fixed:
+            return fail(_R_FIXED, Reason.FIXED_MODULE, "the fixed module cannot move")
+        pair = (Side.of(pivot_body - 1), Side(int(pivot_body)))
+        bad = [int(s) for s in pair if mod.magnets[s - 1] == MAG_BOTH]
+        if bad:
+            return fail(_R_BOTH_MOBILE, Reason.BOTH_RELAYS,
+                        f"both relays on at body side(s) {bad}", body_sides=bad)
+        for f in self._flights.values():
+            if f.plan.substrate == name:
+                return fail(_R_SUPPORT, Reason.SUPPORTING_MOVE,
+                            f"is the substrate of {f.module}'s move in flight", mover=f.module)
+
+        # --- who is the substrate? One of the two cells touching the pivot vertex.
+        candidates: list[tuple[Direction, _Module]] = []
+        for d in (Direction.CW, Direction.CCW):
+            occ = self._at.get(substrate_cell(mod.cell, j, d))
+            if occ is not None:
+                candidates.append((d, self._mods[occ]))
+        if not candidates:
+            cells = [str(substrate_cell(mod.cell, j, d)) for d in Direction]
+            return fail(_R_SUBSTRATE, Reason.MISSING_SUBSTRATE,
+                        f"no module touches pivot joint {int(j)} (cells {', '.join(cells)})",
+                        cells=cells)
+        if len(candidates) == 2:
+            # both cells occupied: the one repelling the mobile is the intended substrate
+            # (Hexmove's rule: the repelling side decides the direction); the goal is then taken.
+            def repels(dm: tuple[Direction, _Module]) -> bool:
+                d, s = dm
+                facing = (j if d is Direction.CW else j - 1) + 3
+                return s.magnet(facing) == MAG_NEG
+            candidates.sort(key=lambda dm: not repels(dm))
+        direction, sub = candidates[0]
+        rule = move_rule(j, direction)
+        sub_cell, sweep, goal = rule.cells(mod.cell)
+        assert sub_cell == sub.cell  # Table 4-3 and the vertex geometry agree
+        if sub.id in self._flights:
+            return fail(_R_SUB_MOVING, Reason.SUBSTRATE_MOVING,
+                        f"substrate {sub.id} is itself moving", substrate=sub.id)
+        blocker = self._occupant(goal)
+        if blocker is not None:
+            return fail(_R_GOAL, Reason.GOAL_OCCUPIED,
+                        f"goal {goal} of {direction.value} about joint {int(j)} is taken "
+                        f"({blocker})", goal=[goal.x, goal.y], by=blocker)
+        blocked = [(c, b) for c in sweep if (b := self._occupant(c)) is not None]
+        if blocked:
+            txt = ", ".join(f"{c} ({b})" for c, b in blocked)
+            return fail(_R_SWEEP, Reason.SWEEP_OCCUPIED,
+                        f"sweep of {direction.value} about joint {int(j)} blocked: {txt}",
+                        cells=[[c.x, c.y] for c, _ in blocked], by=[b for _, b in blocked])
+
+        # --- polarities of the substrate's two sides at the pivot.
+        toward = j if direction is Direction.CW else j - 1  # mobile's global side to sub
+        repel_g = Side.of(toward + 3)
+        attract_g = Side.of(j + 4) if direction is Direction.CW else Side.of(j + 1)
+        repel_b, attract_b = sub.body_side(repel_g), sub.body_side(attract_g)
+        rv, av = sub.magnet(repel_g), sub.magnet(attract_g)
+        pol = {"substrate": sub.id, "repel_body_side": int(repel_b),
+               "attract_body_side": int(attract_b), "repel": rv, "attract": av}
+        if MAG_BOTH in (rv, av):
+            return fail(_R_BOTH_SUB, Reason.BOTH_RELAYS,
+                        f"substrate {sub.id} has both relays on at a pivot side", **pol)
+        if rv != MAG_NEG:
+            return fail(_R_REPEL_OFF if rv == MAG_OFF else _R_REPEL_WRONG,
+                        Reason.WRONG_POLARITY,
+                        f"substrate {sub.id} body side {int(repel_b)} facing the mobile is "
+                        f"{_pol(rv)}, needs negative (repulsion)", **pol)
+        if av != MAG_POS:
+            return fail(_R_ATTRACT_OFF if av == MAG_OFF else _R_ATTRACT_NEG,
+                        Reason.WRONG_POLARITY if av == MAG_OFF else Reason.NO_ATTRACTION,
+                        f"substrate {sub.id} body side {int(attract_b)} is {_pol(av)}, needs "
+                        "positive (attraction)"
+                        + (" -- both substrate sides negative (SCCW defect?)"
+                           if av == MAG_NEG else ""), **pol)
+
+        # --- every latch released except the hinge at the pivot vertex.
+        latched = self._latches(mod, exempt_vertex=(sub.id, j))
+        if latched:
+            txt = "; ".join(f"{x['neighbour']} at global joint {x['vertex']} "
+                            f"({x['owner']}'s solenoid J{x['owner_joint']} closed)"
+                            for x in latched)
+            return fail(_R_LATCH, Reason.NEIGHBOUR_LATCHED, f"still latched: {txt}",
+                        latches=latched)
+        plan = _Plan(rule, sub.id, goal, sweep, repel_b, attract_b)
+        return True, _R_TOO_SHORT, Reason.TOO_SHORT, "", {}, plan
+
+    def _latches(self, mod: _Module, exempt_vertex: tuple[str, Joint] | None
+                 ) -> list[dict[str, Any]]:
+        """Latches holding ``mod`` to its neighbours. Each shared edge (mod's global side
+        s) has mod's pin at mod's vertex s+1 and the neighbour's pin at mod's vertex s."""
+        found = []
+        for s in Side:
+            nid = self._at.get(mod.cell.neighbour(s))
+            if nid is None or nid in self._flights:  # a module in flight is swinging away
+                continue
+            n = self._mods[nid]
+            pins = ((mod, latch_joint(s), Joint.of(s + 1)),  # (owner, owner's global joint, vertex of mod)
+                    (n, latch_joint(s + 3), Joint.of(s)))
+            for owner, owner_joint_g, vertex in pins:
+                if exempt_vertex == (nid, vertex):
+                    continue  # the hinge on the rotation axis
+                if not owner.solenoid_open(owner_joint_g):
+                    found.append({"neighbour": nid, "vertex": int(vertex), "owner": owner.id,
+                                  "owner_joint": int(Joint.of(owner_joint_g - owner.orientation))})
+        return found
+
+    def _break_away(self, mod: _Module, pivot_body: Joint, out: list[Outcome]) -> None:
+        a = mod.attempts[pivot_body]
+        ok, rank, reason, detail, data, plan = self._evaluate(mod, pivot_body)
+        if not ok or plan is None:  # cannot happen: every change re-evaluates; be safe
+            a.drive_since = None
+            self._note(a, rank, reason, detail, data)
+            return
+        started = a.drive_since
+        assert started is not None
+        for other in mod.attempts.values():
+            other.done = True
+            other.drive_since = None
+        participants = (mod.id, plan.substrate) + tuple(sorted(
+            nid for c in mod.cell.neighbours()
+            if (nid := self._at.get(c)) is not None and nid != plan.substrate))
+        self._flights[mod.id] = _Flight(mod.id, started, plan, mod.cell, pivot_body, participants)
+        for c in (plan.goal, *plan.sweep):
+            self._reserved[c] = mod.id
+        out.append(MoveStarted(mod.id, self._now, started, mod.cell, plan.goal,
+                               plan.rule.joint, plan.rule.direction, plan.substrate))
+
+    def _carry_ok(self, f: _Flight) -> bool:
+        mod, sub = self._mods[f.module], self._mods[f.plan.substrate]
+        pair = (Side.of(f.pivot_body - 1), Side(int(f.pivot_body)))
+        return (all(mod.magnets[s - 1] == MAG_NEG for s in pair)
+                and sub.magnets[f.plan.attract_body - 1] == MAG_POS)
+
+    def _check_carry(self, out: list[Outcome]) -> None:
+        for f in list(self._flights.values()):
+            if f.carried or self._carry_ok(f):
+                continue
+            # the pull stopped before half-way: the module falls back to its cell
+            held = self._now - f.started_ns
+            del self._flights[f.module]
+            self._release(f.module)
+            out.append(Fault(f.module, self._now, Reason.STALLED,
+                             f"{f.module}: attraction stopped {held / 1e6:.1f} ms into the "
+                             f"rotation (< {self.params.carry_ns / 1e6:.1f} ms): stalled, fell "
+                             f"back to {f.from_cell}",
+                             {"from": [f.from_cell.x, f.from_cell.y],
+                              "to": [f.plan.goal.x, f.plan.goal.y], "held_ns": held}))
+
+    def _release(self, module: str) -> None:
+        for c in [c for c, m in self._reserved.items() if m == module]:
+            del self._reserved[c]
+
+    def _complete(self, f: _Flight, out: list[Outcome]) -> None:
+        mod = self._mods[f.module]
+        del self._flights[f.module]
+        self._release(f.module)
+        before = mod.orientation
+        del self._at[mod.cell]
+        assert f.plan.goal not in self._at  # reserved since break-away
+        mod.cell = f.plan.goal
+        self._at[mod.cell] = mod.id
+        mod.orientation = orientation_after(before, f.plan.rule.direction)
+        out.append(MoveCompleted(mod.id, self._now, f.started_ns, f.from_cell, mod.cell,
+                                 f.plan.rule.joint, f.plan.rule.direction, before,
+                                 mod.orientation, f.plan.substrate, f.participants))
+
+
+def _pol(v: int) -> str:
+    return {MAG_OFF: "off", MAG_POS: "positive", MAG_NEG: "negative", MAG_BOTH: "both"}[v]
