@@ -4,7 +4,8 @@ It publishes poses (``world/pose/<module>``) and optical switches
 (``world/switches/<module>``), and carries IR light: a burst on ``ir/tx/<src>`` is
 forwarded on ``ir/rx/<dst>`` to every transceiver the light reaches —
 
-* the centre transceiver (0) of every module and the PC's, for the centre channel;
+* from the PC: the centre transceiver (0) of every module; from a module's centre
+  transceiver: the PC's;
 * the neighbour across body side s, on the transceiver of its facing side (Table 4-1,
   through both modules' orientations), for a side channel.
 
@@ -92,8 +93,7 @@ class World:
         if me is None:
             return []
         if transceiver == 0:
-            return [(PC, 0)] + [(b.module, 0) for b in self.bodies.values()
-                                if b.module != me.module and b.kind == "virtual"]
+            return [(PC, 0)]  # the centre transceivers face the PC's, not each other
         g = body_to_global(transceiver, me.orientation)
         other = self.at(me.cell.neighbour(g))
         if other is None or other.kind != "virtual":

@@ -1,0 +1,112 @@
+"""Lower bounds on the number of moves, and random problem instances for tests and benchmarks.
+
+A move carries one module one cell, so any plan needs at least the cost of the best
+assignment of modules to goal cells by hex distance. With a metric cost there is an
+optimal assignment that leaves every module already on a goal cell where it is
+(re-route through it by the triangle inequality), so only electrons (modules off the
+goal) and voids (empty goal cells) need assigning.
+"""
+
+from __future__ import annotations
+
+import random
+from typing import Iterable
+
+import numpy as np
+
+from bus.lattice import Cell
+
+from .plan import Problem
+from .rules import Coord, neighbours_xy, xy
+
+
+def min_cost_assignment(cost: np.ndarray) -> tuple[np.ndarray, float]:
+    """Minimum-cost perfect assignment of a square cost matrix (Hungarian method,
+    shortest augmenting paths with potentials, O(n^3) with a numpy inner loop).
+
+    Returns ``col_of_row`` (the column given to each row) and the total cost.
+    """
+    n = cost.shape[0]
+    if n == 0:
+        return np.zeros(0, dtype=np.intp), 0.0
+    c = np.asarray(cost, dtype=float)
+    u = np.zeros(n + 1)
+    v = np.zeros(n + 1)
+    row_of_col = np.zeros(n + 1, dtype=np.intp)   # 1-based; 0 = unassigned
+    way = np.zeros(n + 1, dtype=np.intp)
+    for i in range(1, n + 1):
+        row_of_col[0] = i
+        j0 = 0
+        minv = np.full(n + 1, np.inf)
+        used = np.zeros(n + 1, dtype=bool)
+        while True:
+            used[j0] = True
+            i0 = row_of_col[j0]
+            # Reduced costs of row i0 against every unused column, in one numpy step.
+            cur = c[i0 - 1] - u[i0] - v[1:]
+            free = ~used[1:]
+            better = free & (cur < minv[1:])
+            minv[1:][better] = cur[better]
+            way[1:][better] = j0
+            cand = np.where(free, minv[1:], np.inf)
+            j1 = int(np.argmin(cand)) + 1
+            delta = cand[j1 - 1]
+            u[row_of_col[used]] += delta
+            v[used] -= delta
+            minv[1:][free] -= delta
+            j0 = j1
+            if row_of_col[j0] == 0:
+                break
+        while j0:
+            j1 = way[j0]
+            row_of_col[j0] = row_of_col[j1]
+            j0 = j1
+    col_of_row = np.zeros(n, dtype=np.intp)
+    for j in range(1, n + 1):
+        col_of_row[row_of_col[j] - 1] = j - 1
+    return col_of_row, float(c[np.arange(n), col_of_row].sum())
+
+
+def distance_matrix(a: Iterable[Cell | Coord], b: Iterable[Cell | Coord]) -> np.ndarray:
+    """Hex distances between two lists of cells (rows: ``a``)."""
+    pa = np.array([xy(c) for c in a], dtype=np.int64).reshape(-1, 2)
+    pb = np.array([xy(c) for c in b], dtype=np.int64).reshape(-1, 2)
+    dx = pb[None, :, 0] - pa[:, None, 0]
+    dy = pb[None, :, 1] - pa[:, None, 1]
+    return (np.abs(dx) + np.abs(dy) + np.abs(dx + dy)) // 2
+
+
+def assignment_lower_bound(initial: Iterable[Cell | Coord], goal: Iterable[Cell | Coord]) -> int:
+    """Minimum total hex distance over assignments of electrons to voids (a lower bound
+    on the moves of any plan)."""
+    i = {xy(c) for c in initial}
+    g = {xy(c) for c in goal}
+    electrons, voids = sorted(i - g), sorted(g - i)
+    if not electrons:
+        return 0
+    _, total = min_cost_assignment(distance_matrix(electrons, voids))
+    return int(round(total))
+
+
+def random_blob(n: int, rng: random.Random, start: Coord = (0, 0),
+                forbidden: frozenset[Coord] = frozenset()) -> set[Coord]:
+    """A random connected set of ``n`` cells grown from ``start`` (Eden growth)."""
+    cells = {start}
+    rim: list[Coord] = [c for c in neighbours_xy(start) if c not in forbidden]
+    while len(cells) < n:
+        k = rng.randrange(len(rim))
+        rim[k], rim[-1] = rim[-1], rim[k]
+        c = rim.pop()
+        if c in cells:
+            continue
+        cells.add(c)
+        rim.extend(m for m in neighbours_xy(c) if m not in cells and m not in forbidden)
+    return cells
+
+
+def random_problem(n: int, seed: int, name: str | None = None) -> Problem:
+    """Two independent random connected shapes of ``n`` modules sharing the fixed cell (0,0)."""
+    rng = random.Random(seed)
+    initial = random_blob(n, rng)
+    goal = random_blob(n, rng)
+    return Problem.of(initial, goal, (0, 0), name=name or f"random-{n}-{seed}")

@@ -1,0 +1,122 @@
+"""``exact``: A* over whole configurations (small fleets).
+
+Modules are interchangeable, so a configuration is the set of occupied cells. The
+successors of a configuration are its :func:`planner_svc.rules.legal_moves`; the
+heuristic (each module off the goal must still travel at least its hex distance to the
+nearest goal cell) never overestimates, so the first plan found has the fewest moves.
+
+The lattice is unbounded, so the search is confined to a *region*: no module may
+enter a cell farther than ``margin`` (default 3) from the initial or goal cells. "Unreachable" therefore means
+"unreachable without leaving that region" and the reason says so. The search also
+stops after ``max_configurations`` expansions and reports that it gave up.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+
+from bus.lattice import Cell
+
+from .plan import Plan
+from .rules import RULE_OFFSETS, Coord, _legal_xy, hex_distance, to_move, xy
+
+DEFAULT_MARGIN = 3
+DEFAULT_MAX_CONFIGURATIONS = 200_000
+_GOAL_OFFSET = {r: go for r, _, _, go in RULE_OFFSETS}
+
+
+def region_around(cells: set[Coord], margin: int) -> set[Coord]:
+    """All cells within hex distance ``margin`` of ``cells``."""
+    out = set(cells)
+    rim = set(cells)
+    for _ in range(margin):
+        nxt = set()
+        for c in rim:
+            for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1), (1, -1), (-1, 1)):
+                n = (c[0] + dx, c[1] + dy)
+                if n not in out:
+                    nxt.add(n)
+        out |= nxt
+        rim = nxt
+    return out
+
+
+def search_moves(start: frozenset[Coord], goal: frozenset[Coord], fixed: Coord,
+                 obstacles: set[Coord], region: set[Coord], max_configurations: int
+                 ) -> tuple[list[tuple[frozenset[Coord], Coord, object]] | None, int]:
+    """A* from ``start`` to ``goal``, never moving a module out of ``region``. Returns (list of (configuration before, mobile, rule)),
+    or None if the goal is unreachable (or the limit hit), and the number of expansions."""
+    goal_list = list(goal)
+
+    def h(conf: frozenset[Coord]) -> int:
+        return sum(min(hex_distance(c, g) for g in goal_list) for c in conf - goal)
+
+    tie = itertools.count()
+    parent: dict[frozenset[Coord], tuple[frozenset[Coord], Coord, object] | None] = {start: None}
+    cost = {start: 0}
+    heap = [(h(start), next(tie), start)]
+    expanded = 0
+    while heap:
+        _, _, conf = heapq.heappop(heap)
+        if conf == goal:
+            path = []
+            while parent[conf] is not None:
+                prev, m, rule = parent[conf]
+                path.append((prev, m, rule))
+                conf = prev
+            return path[::-1], expanded
+        expanded += 1
+        if expanded > max_configurations:
+            return None, expanded
+        g = cost[conf] + 1
+        occ = set(conf)
+        for _, m, rule in _legal_xy(occ, fixed, obstacles):
+            go = _GOAL_OFFSET[rule]
+            dest = (m[0] + go[0], m[1] + go[1])
+            if dest not in region:
+                continue
+            nxt = frozenset(occ - {m} | {dest})
+            if g < cost.get(nxt, 1 << 30):
+                cost[nxt] = g
+                parent[nxt] = (conf, m, rule)
+                heapq.heappush(heap, (g + h(nxt), next(tie), nxt))
+    return None, expanded
+
+
+def plan_exact(plan: Plan, margin: int = DEFAULT_MARGIN,
+               max_configurations: int = DEFAULT_MAX_CONFIGURATIONS) -> None:
+    """Fill ``plan`` with a fewest-moves serial plan, or say why there is none."""
+    p = plan.problem
+    start = frozenset(xy(c) for c in p.initial)
+    goal = frozenset(xy(c) for c in p.goal)
+    region = region_around(set(start | goal), margin)
+    path, expanded = search_moves(start, goal, xy(p.fixed), {xy(c) for c in p.obstacles},
+                                  region, max_configurations)
+    if path is None:
+        if expanded > max_configurations:
+            plan.reason = f"exact search gave up after {max_configurations} configurations"
+        else:
+            plan.reason = (f"unreachable: no plan within {margin} cells of the initial and goal "
+                           f"configurations ({expanded} configurations explored)")
+        return
+    plan.steps = [[to_move(conf, m, rule)] for conf, m, rule in path]
+    plan.ok = True
+    plan.notes.append(f"exact: {expanded} configurations expanded; plan has the fewest moves "
+                      f"within the search region")
+
+
+def exact_reachable(initial, goal, fixed, obstacles=(), margin: int = DEFAULT_MARGIN,
+                    max_configurations: int = DEFAULT_MAX_CONFIGURATIONS) -> bool | None:
+    """True/False if the search decides reachability, None if it hit its limit."""
+    start = frozenset(xy(c) for c in initial)
+    g = frozenset(xy(c) for c in goal)
+    region = region_around(set(start | g), margin)
+    path, expanded = search_moves(start, g, xy(fixed), {xy(c) for c in obstacles}, region,
+                                  max_configurations)
+    if path is None and expanded > max_configurations:
+        return None
+    return path is not None
+
+
+__all__ = ["plan_exact", "exact_reachable", "region_around", "Cell"]

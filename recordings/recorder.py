@@ -1,0 +1,239 @@
+"""The recorder: every sample under ``hexbot/<fleet>/**`` into MCAP (ARCHITECTURE: "every byte
+is visible"; rosbag2/MCAP as the model).
+
+* One channel per key (topic = the key relative to the fleet root), message encoding ``json``,
+  a JSON Schema per channel kind (:mod:`recordings.schemas`).
+* Log time = the sample's ``sim_time_ns`` (``time_source="sim"``, virtual runs) or the wall
+  time it was received (``"wall"``, live runs); publish time = the envelope's ``wall_time_ns``
+  or the receive wall time.
+* Flushed at least every ``flush_interval_s`` wall seconds by a background thread, so a killed
+  recorder loses at most that much; :mod:`recordings.reader` reads files without a footer.
+* Optional rotation by size or duration into ``<stem>_0001.mcap``, ``<stem>_0002.mcap``...
+* Errors are data: a sample that is not JSON, or lacks its schema's required fields, is written
+  as a ``_recorder/error`` record carrying the key and the raw bytes, never dropped.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from pathlib import Path
+from typing import Any, Literal, Mapping
+
+from bus.keys import Keys
+from bus.messages import RunMeta
+
+from . import meta as meta_mod
+from .schemas import RECORDER_ERROR_TOPIC, kind_of
+from .sink import McapSink
+from .stats import Tally
+
+TimeSource = Literal["auto", "sim", "wall"]
+_CHECK_SIZE_EVERY = 64
+_decode = json.JSONDecoder().decode  # skips json.loads' encoding sniffing (payloads are UTF-8)  # messages between file-size checks (tell() is a syscall)
+
+
+def part_path(out: Path, index: int) -> Path:
+    """``run.mcap``, 3 -> ``run_0003.mcap``."""
+    return out.with_name(f"{out.stem}_{index:04d}{out.suffix or '.mcap'}")
+
+
+def _required(topic: str) -> tuple[str, ...]:
+    schema = kind_of(topic).schema
+    return tuple(schema.get("required", ())) if schema else ()
+
+
+class Recorder:
+    """Writes bus samples to MCAP. Thread-safe: samples may come from any thread."""
+
+    def __init__(self, out: str | Path, *, fleet: str = "default",
+                 meta: Mapping[str, Any] | RunMeta | None = None, time_source: TimeSource = "auto",
+                 compression: str = "zstd", chunk_size: int = 512 * 1024,
+                 flush_interval_s: float = 0.5, rotate_bytes: int | None = None,
+                 rotate_s: float | None = None, argv: list[str] | None = None) -> None:
+        self.out = Path(out)
+        self.keys = Keys(fleet)
+        self.time_source: TimeSource = time_source
+        self.compression = compression
+        self.chunk_size = chunk_size
+        self.flush_interval_s = flush_interval_s
+        self.rotate_bytes = rotate_bytes
+        self.rotate_ns = None if rotate_s is None else int(rotate_s * 1e9)
+        self.meta: dict[str, Any] = meta_mod.merge(meta_mod.base_metadata(fleet, argv), meta)
+        if time_source != "auto":
+            self.meta["log_time"] = time_source  # how to read log times (the replay needs it)
+        self._done = Tally()  # counts of the closed parts
+        self._part = Tally()  # counts of the open part (written into it when it closes)
+        self._topics: dict[str, str] = {}  # key -> topic (cache)
+        self.paths: list[Path] = []
+        self._required: dict[str, tuple[str, ...]] = {}
+        self._last_sim_ns = 0
+        self._since_size_check = 0
+        self._part_first_ns: int | None = None
+        self._lock = threading.Lock()
+        self._closed = False
+        self._sink = self._open_part()
+        self._stop = threading.Event()
+        self._flusher = threading.Thread(target=self._flush_loop, name="recorder-flush", daemon=True)
+        self._flusher.start()
+
+    # -- attaching --------------------------------------------------------------------------
+    def attach(self, bus: Any) -> None:
+        """Subscribe to everything of ``bus``'s fleet (a :class:`bus.transport.Bus`).
+
+        Handlers run on the bus clock's thread, so a virtual clock waits for the recorder
+        like for any participant: when a virtual run settles, everything is written.
+        """
+        if bus.keys.root != self.keys.root:
+            raise ValueError(f"recorder is for {self.keys.root}, bus is {bus.keys.root}")
+        if self.time_source == "auto":
+            self.time_source = "sim" if getattr(bus.clock, "kind", "") == "virtual" else "wall"
+            with self._lock:
+                self.meta["log_time"] = self.time_source
+                self._sink.add_metadata(self.meta)
+        bus.subscribe(self.keys.all, self.on_sample)
+
+    def on_sample(self, key: str, payload: bytes) -> None:
+        """Bus handler: record one sample received now."""
+        self.write(key, payload)
+
+    # -- writing ----------------------------------------------------------------------------
+    def write(self, key: str, payload: bytes, *, receive_wall_ns: int | None = None) -> None:
+        """Record one sample of ``key`` (full key or relative topic)."""
+        wall = time.time_ns() if receive_wall_ns is None else receive_wall_ns
+        topic = self._topics.get(key)
+        if topic is None:
+            topic = self._topics[key] = self.keys.relative(key)
+        try:
+            obj = _decode(payload.decode("utf-8"))
+        except ValueError as exc:  # UnicodeDecodeError is a ValueError
+            self._error(topic, key, payload, wall, "not-json", str(exc))
+            return
+        sim = obj.get("sim_time_ns") if isinstance(obj, dict) else None
+        if not isinstance(sim, int) or isinstance(sim, bool) or sim < 0:
+            sim = None
+        required = self._required.get(topic)
+        if required is None:
+            required = self._required[topic] = _required(topic)
+        if required:
+            missing = [k for k in required if k not in obj] if isinstance(obj, dict) else list(required)
+            if missing:
+                self._error(topic, key, payload, wall, "missing-fields", f"{kind_of(topic).name} needs {missing}", sim)
+                return
+        pub = obj.get("wall_time_ns") if isinstance(obj, dict) else None
+        with self._lock:
+            if sim is not None and sim > self._last_sim_ns:
+                self._last_sim_ns = sim
+            log_time = wall if self.time_source == "wall" else (self._last_sim_ns if sim is None else sim)
+            self._write_locked(topic, payload, obj, log_time, pub if isinstance(pub, int) else wall)
+            if topic == "meta" and isinstance(obj, dict):
+                self.meta = meta_mod.merge(self.meta, RunMeta.from_dict(obj))
+                self._sink.add_metadata(self.meta)
+
+    def _error(self, topic: str, key: str, payload: bytes, wall: int, reason: str, detail: str,
+               sim: int | None = None) -> None:
+        record = {"key": key, "topic": topic, "reason": reason, "detail": detail, "payload_hex": payload.hex(),
+                  "wall_time_ns": wall, "sim_time_ns": sim}
+        data = json.dumps(record, separators=(",", ":")).encode()
+        with self._lock:
+            log_time = wall if self.time_source == "wall" else (self._last_sim_ns if sim is None else sim)
+            self._write_locked(RECORDER_ERROR_TOPIC, data, record, log_time, wall)
+
+    def _write_locked(self, topic: str, data: bytes, obj: Any, log_time: int, publish_time: int) -> None:
+        if self._closed:
+            return
+        self._maybe_rotate(log_time)
+        if self._part_first_ns is None:
+            self._part_first_ns = log_time
+        self._sink.write(topic, data, log_time, publish_time)
+        self._part.add(topic, obj, log_time)
+
+    # -- parts and rotation --------------------------------------------------------------------
+    @property
+    def rotating(self) -> bool:
+        return self.rotate_bytes is not None or self.rotate_ns is not None
+
+    def _close_part(self) -> None:
+        self._sink.close(self._part)
+        self._done.merge(self._part)
+        self._part = Tally()
+
+    def _open_part(self) -> McapSink:
+        path = part_path(self.out, len(self.paths) + 1) if self.rotating else self.out
+        path.parent.mkdir(parents=True, exist_ok=True)
+        sink = McapSink(path, fleet=self.keys.fleet, compression=self.compression,
+                        chunk_size=self.chunk_size)
+        sink.add_metadata(self.meta)
+        sink.flush()  # the header and metadata reach the disk at once
+        self.paths.append(path)
+        self._part_first_ns = None
+        return sink
+
+    def _maybe_rotate(self, log_time: int | None) -> None:
+        """Start the next part if this one is old or big enough (``log_time`` None: size only)."""
+        if not self.rotating or self._part_first_ns is None:
+            return
+        due = (log_time is not None and self.rotate_ns is not None
+               and log_time - self._part_first_ns >= self.rotate_ns)
+        if not due and self.rotate_bytes is not None:
+            self._since_size_check += 1
+            if log_time is None or self._since_size_check >= _CHECK_SIZE_EVERY:
+                self._since_size_check = 0
+                due = self._sink.size() >= self.rotate_bytes
+        if due:
+            self._close_part()
+            self._sink = self._open_part()
+
+    # -- flushing and closing ----------------------------------------------------------------
+    def flush(self) -> None:
+        """Hand everything written so far to the OS now."""
+        with self._lock:
+            if not self._closed:
+                self._sink.flush()
+
+    def _flush_loop(self) -> None:
+        # Why a thread: under a virtual clock, a flush timer on the clock would be sim time
+        # (and would keep the run from ever running out of events).
+        while not self._stop.wait(self.flush_interval_s):
+            with self._lock:
+                if self._closed:
+                    return
+                if self._sink.dirty:
+                    self._sink.flush()
+                    self._maybe_rotate(None)
+
+    def close(self) -> Tally:
+        """Write footers and return the counts; later samples are ignored.
+
+        Subscriptions stay declared (the Bus owns them and closes them): undeclaring one
+        behind the Bus's back would leave a virtual clock waiting for its deliveries.
+        """
+        with self._lock:
+            if not self._closed:
+                self._closed = True
+                self._close_part()
+        self._stop.set()
+        if self._flusher.is_alive() and threading.current_thread() is not self._flusher:
+            self._flusher.join()
+        return self.tally
+
+    @property
+    def tally(self) -> Tally:
+        """Counts of everything written so far (all parts)."""
+        with self._lock:
+            out = Tally()
+            out.merge(self._done)
+            out.merge(self._part)
+        return out
+
+    @property
+    def messages(self) -> int:
+        """Samples written so far (cheap; for polling)."""
+        return self._done.messages + self._part.messages
+
+    def __enter__(self) -> "Recorder":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

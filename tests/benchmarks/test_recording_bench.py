@@ -1,0 +1,124 @@
+"""Recording and replay throughput. Loss is asserted; speed targets are printed (figures depend
+on the machine and its load), not asserted.
+
+Recording and replay throughput (run alone: ``pytest -s tests/benchmarks/test_recording_bench.py``).
+
+* writer-only: frames/s through ``Recorder.write`` (JSON check, schema check, MCAP, zstd), count-verified
+  by reading the file back;
+* end-to-end: frames/s published on one zenoh session and recorded by a Recorder on another
+  (reliable, blocking congestion control, so a loss would be a bug), count-verified;
+* replay: sim seconds turned into an .rrd per wall second.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import zenoh
+
+from bus.clock import WallClock
+from bus.codec import Link, encode_ack, encode_command, encode_msg1, encode_relay, parse
+from bus.envelope import Envelope
+from bus.session import SessionOptions, open_session
+from bus.transport import Bus
+from recordings.reader import summary
+from recordings.recorder import Recorder
+from recordings.replay import replay
+from recordings.synthetic import run_synthetic
+
+WRITER_TARGET = 100_000  # frames/s
+REPLAY_TARGET = 50.0  # x real time
+
+
+def _payloads(n: int) -> list[tuple[str, bytes]]:
+    """A realistic mix of frames on all links (keys and envelope JSON), built once."""
+    kinds = [(Link.SIDE, encode_msg1(3, -2, 4), "m3.comm"), (Link.PC, encode_command("MCW", 4, 8, 4, 9), "pc"),
+             (Link.UART0_DOWN, encode_relay(21, 4, 8, 4, 9), "m3.comm"), (Link.CENTRE, encode_ack(21), "m3.comm"),
+             (Link.SIDE, b"\x07\x07", "m4.comm")]
+    frames = [(link, parse(link, raw), src) for link, raw, src in kinds]
+    out = []
+    for i in range(n):
+        link, frame, src = frames[i % len(frames)]
+        env = Envelope.of(frame, src=src, dst="*", sim_time_ns=i * 10_000, wall_time_ns=time.time_ns(), seq=i)
+        out.append((f"hexbot/bench/frame/{link.value}/{src}", env.to_json()))
+    return out
+
+
+def _report(name: str, value: float, unit: str, target: float | None = None) -> None:
+    extra = f"  (target {target:,.0f})" if target else ""
+    print(f"\n[bench] {name}: {value:,.0f} {unit}{extra}")
+
+
+def test_writer_only_rate(tmp_path):
+    n = 300_000
+    payloads = _payloads(n)
+    rec = Recorder(tmp_path / "w.mcap", fleet="bench", time_source="sim")
+    t0 = time.perf_counter()
+    for key, data in payloads:
+        rec.write(key, data)
+    tally = rec.close()
+    dt = time.perf_counter() - t0
+    assert tally.frames == n
+    assert summary(tmp_path / "w.mcap").tally.frames == n  # nothing lost on the way to disk
+    rate = n / dt
+    size = (tmp_path / "w.mcap").stat().st_size
+    _report("writer-only", rate, "frames/s", WRITER_TARGET)
+    print(f"[bench] file: {size / 1e6:.1f} MB for {n} frames ({size / n:.0f} B/frame, zstd)")
+    print(f"[bench] writer-only {'meets' if rate >= WRITER_TARGET else 'MISSES'} the target")
+
+
+def test_end_to_end_rate_over_zenoh(tmp_path):
+    n = 200_000
+    payloads = _payloads(n)
+    # The recorder's Bus listens on a free port; the publisher session connects to it.
+    import socket
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    clock = WallClock()
+    bus = Bus(clock, "bench", options=SessionOptions(listen=[f"tcp/127.0.0.1:{port}"]))
+    rec = Recorder(tmp_path / "e2e.mcap", fleet="bench")
+    rec.attach(bus)
+    runner = threading.Thread(target=clock.run, kwargs={"until": lambda: rec.messages >= n,
+                                                        "timeout_s": 300}, daemon=True)
+    runner.start()
+    pub_session = open_session(SessionOptions(connect=[f"tcp/127.0.0.1:{port}"]))
+    try:
+        pubs: dict[str, zenoh.Publisher] = {}
+        for key, _ in payloads[:10]:
+            if key not in pubs:
+                pubs[key] = pub_session.declare_publisher(
+                    key, congestion_control=zenoh.CongestionControl.BLOCK, reliability=zenoh.Reliability.RELIABLE)
+        deadline = time.monotonic() + 15
+        while not all(p.matching_status.matching for p in pubs.values()):
+            assert time.monotonic() < deadline, "recorder subscription never matched"
+            time.sleep(0.01)
+        t0 = time.perf_counter()
+        for key, data in payloads:
+            pubs[key].put(data)
+        t_pub = time.perf_counter() - t0
+        runner.join(timeout=300)
+        dt = time.perf_counter() - t0
+    finally:
+        pub_session.close()
+        clock.stop()
+        tally = rec.close()
+        bus.close()
+    got = tally.frames
+    _report("end-to-end (zenoh -> Bus -> Recorder -> MCAP)", got / dt, "frames/s")
+    print(f"[bench] publisher alone put {n} frames at {n / t_pub:,.0f} frames/s; received {got}/{n}")
+    assert got == n, f"lost {n - got} frames"
+
+
+def test_replay_speed(tmp_path):
+    path = tmp_path / "r.mcap"
+    rec = Recorder(path, fleet="replaybench")
+    pub = run_synthetic("replaybench", attach=rec.attach, modules=12, moves=60, filler_frames=200)
+    rec.close()
+    st = replay(path, rrd=tmp_path / "r.rrd")
+    frames_per_sim_s = len(pub.frames) / (pub.end_ns / 1e9)
+    _report("replay to .rrd", st.speed, "x real time", REPLAY_TARGET)
+    print(f"[bench] {st.sim_ns / 1e9:.1f} sim s, {st.frames} frames ({frames_per_sim_s:,.0f}/sim s), "
+          f"{st.rows} rows in {st.wall_s:.2f} s")
+    print(f"[bench] replay {'meets' if st.speed >= REPLAY_TARGET else 'MISSES'} the target")
