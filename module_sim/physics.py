@@ -271,10 +271,17 @@ def negative_pairs(magnets: Sequence[int]) -> list[Joint]:
     return [k for k in Joint if neg[Side.of(k - 1) - 1] and neg[k - 1]]
 
 
-# Ranks: how far an evaluation got. A refusal reports the furthest failure.
-_R_FIXED, _R_BOTH_MOBILE, _R_SUPPORT, _R_SUBSTRATE, _R_SUB_MOVING, _R_GOAL, _R_SWEEP, \
-    _R_BOTH_SUB, _R_REPEL_OFF, _R_REPEL_WRONG, _R_ATTRACT_OFF, _R_ATTRACT_NEG, _R_LATCH, \
-    _R_TOO_SHORT = range(14)
+# Ranks: how far an evaluation got. A refusal reports the highest-ranked failure seen
+# during the attempt (checks run in their own order; a relay fight outranks everything
+# but a drive that was actually achieved, because it is a hardware fault).
+_R_FIXED, _R_SUPPORT, _R_SUBSTRATE, _R_SUB_MOVING, _R_GOAL, _R_SWEEP, _R_REPEL_OFF, \
+    _R_REPEL_WRONG, _R_ATTRACT_OFF, _R_ATTRACT_NEG, _R_LATCH, _R_BOTH, _R_TOO_SHORT, \
+    _R_PREEMPTED = range(14)
+#: Failures the world, not the module's own actuators, causes: when one of these ends a
+#: drive before break-away it is the diagnosis (another module got there first).
+_WORLD_REASONS = frozenset({Reason.SUPPORTING_MOVE, Reason.SUBSTRATE_MOVING,
+                            Reason.GOAL_OCCUPIED, Reason.SWEEP_OCCUPIED,
+                            Reason.MISSING_SUBSTRATE})
 
 
 class MotionJudge:
@@ -432,7 +439,9 @@ class MotionJudge:
                 if a.drive_since is not None:  # the drive broke before break-away
                     held = self._now - a.drive_since
                     a.drive_since = None
-                    if held > 0:
+                    if reason in _WORLD_REASONS:
+                        self._note(a, _R_PREEMPTED, reason, detail, data)
+                    elif held > 0:
                         self._note(a, _R_TOO_SHORT, Reason.TOO_SHORT,
                                    f"{mod.id}: drive held {held / 1e6:.1f} ms < break-away "
                                    f"{self.params.breakaway_ns / 1e6:.1f} ms (then {reason.value})",
@@ -470,7 +479,7 @@ class MotionJudge:
         pair = (Side.of(pivot_body - 1), Side(int(pivot_body)))
         bad = [int(s) for s in pair if mod.magnets[s - 1] == MAG_BOTH]
         if bad:
-            return fail(_R_BOTH_MOBILE, Reason.BOTH_RELAYS,
+            return fail(_R_BOTH, Reason.BOTH_RELAYS,
                         f"both relays on at body side(s) {bad}", body_sides=bad)
         for f in self._flights.values():
             if f.plan.substrate == name:
@@ -495,7 +504,13 @@ class MotionJudge:
                 d, s = dm
                 facing = (j if d is Direction.CW else j - 1) + 3
                 return s.magnet(facing) == MAG_NEG
-            candidates.sort(key=lambda dm: not repels(dm))
+            repelling = [dm for dm in candidates if repels(dm)]
+            if len(repelling) != 1:  # no way to tell which is meant: either way no goal
+                both = ", ".join(f"{s.id} at {s.cell}" for _, s in candidates)
+                return fail(_R_GOAL, Reason.GOAL_OCCUPIED,
+                            f"both cells touching pivot joint {int(j)} are taken ({both}): "
+                            "no free goal", by=[s.id for _, s in candidates])
+            candidates = repelling
         direction, sub = candidates[0]
         rule = move_rule(j, direction)
         sub_cell, sweep, goal = rule.cells(mod.cell)
@@ -524,7 +539,7 @@ class MotionJudge:
         pol = {"substrate": sub.id, "repel_body_side": int(repel_b),
                "attract_body_side": int(attract_b), "repel": rv, "attract": av}
         if MAG_BOTH in (rv, av):
-            return fail(_R_BOTH_SUB, Reason.BOTH_RELAYS,
+            return fail(_R_BOTH, Reason.BOTH_RELAYS,
                         f"substrate {sub.id} has both relays on at a pivot side", **pol)
         if rv != MAG_NEG:
             return fail(_R_REPEL_OFF if rv == MAG_OFF else _R_REPEL_WRONG,
