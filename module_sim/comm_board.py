@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from typing import Callable
 
-from bus import codec
+from bus import codec, rotations
 from bus.clock import Clock
 from bus.functions import ACK_UNKNOWN, FUNCTIONS, Board, FunctionCode as F
 from bus.lattice import Cell, Side, body_to_global
@@ -188,53 +188,29 @@ class CommBoard(Mcu):
         yield Delay(10)
         self.SideOffN(s)
 
-    def LMCW(self, i: int, t1: int, t2: int, t3: int) -> Program:
-        self.JointOn(i)
-        self.JointOn(i + 1)
-        yield Delay(t1)
-        self.SideOnN(i)
-        self.SideOnN(i - 1)
-        yield Delay(t2)
-        self.JointOffAll()
-        yield Delay(t3)
+    def _mirror(self, name: str, i: int, t1: int, t2: int, t3: int) -> Program:
+        """Replay a rotation of :mod:`bus.rotations` on the LEDs, with the same waits."""
+        actions = {"open": self.JointOn, "pos": self.SideOnP, "neg": self.SideOnN,
+                   "close_all": self.JointOffAll, "off_all": self._magnet_leds_off}
+        for ticks in rotations.perform(name, i, t1, t2, t3, actions=actions,
+                                       sccw_both_negative=self.profile.sccw_both_negative):
+            yield Delay(ticks)
+
+    def _magnet_leds_off(self) -> None:
         self.SideOffAllP()
         self.SideOffAllN()
+
+    def LMCW(self, i: int, t1: int, t2: int, t3: int) -> Program:
+        yield from self._mirror("LMCW", i, t1, t2, t3)
 
     def LMCCW(self, i: int, t1: int, t2: int, t3: int) -> Program:
-        self.JointOn(i + 1)
-        yield Delay(t1)
-        self.SideOnN(i)
-        self.SideOnN(i - 1)
-        yield Delay(t2)
-        self.JointOn(i)
-        yield Delay(t3)
-        self.JointOffAll()
-        self.SideOffAllP()
-        self.SideOffAllN()
+        yield from self._mirror("LMCCW", i, t1, t2, t3)
 
     def LSCW(self, i: int, t1: int, t2: int, t3: int) -> Program:
-        self.JointOn(i - 1)
-        yield Delay(t1)
-        self.SideOnN(i - 3)
-        self.SideOnP(i - 2)
-        yield Delay(t2)
-        self.JointOn(i - 2)
-        yield Delay(t3)
-        self.JointOffAll()
-        self.SideOffAllP()
-        self.SideOffAllN()
+        yield from self._mirror("LSCW", i, t1, t2, t3)
 
     def LSCCW(self, i: int, t1: int, t2: int, t3: int) -> Program:
-        self.JointOn(i - 3)
-        self.JointOn(i - 4)
-        yield Delay(t1)
-        self.SideOnN(i - 4)
-        (self.SideOnN if self.profile.sccw_both_negative else self.SideOnP)(i - 5)
-        yield Delay(t2)
-        self.JointOffAll()
-        yield Delay(t3)
-        self.SideOffAllP()
-        self.SideOffAllN()
+        yield from self._mirror("LSCCW", i, t1, t2, t3)
 
     # -- roles and localization --------------------------------------------------------------
     @property

@@ -6,7 +6,7 @@ on UART0 and prints to a PC terminal on UART1 (the debug link).
 
 from __future__ import annotations
 
-from bus import codec
+from bus import codec, rotations
 from bus.clock import Clock
 from bus.functions import FUNCTIONS, Board
 from bus.pins import CONTROL_UART_PINS, DIP_PORT, JOINT, MAGNET_NEG, MAGNET_POS, Pin, fold
@@ -99,50 +99,26 @@ class ControlBoard(Mcu):
     def SNTest(self, n: int, t: int) -> Program:
         yield from self._magnet_test(self.SxN, n, t)
 
+    def _rotation(self, name: str, i: int, t1: int, t2: int, t3: int) -> Program:
+        """Run a rotation of :mod:`bus.rotations` on the relays and solenoids."""
+        actions = {"open": self.JxOpen, "pos": self.SxP, "neg": self.SxN,
+                   "close_all": self.JxCloseAll, "off_all": self.SxOffAll}
+        for ticks in rotations.perform(name, i, t1, t2, t3, actions=actions,
+                                       sccw_both_negative=self.profile.sccw_both_negative):
+            yield Delay(ticks)
+
     def MCW(self, i: int, t1: int, t2: int, t3: int) -> Program:
-        self.JxOpen(i)
-        self.JxOpen(i + 1)
-        yield Delay(t1)
-        self.SxN(i)
-        self.SxN(i - 1)
-        yield Delay(t2)
-        self.JxCloseAll()
-        yield Delay(t3)
-        self.SxOffAll()
+        yield from self._rotation("MCW", i, t1, t2, t3)
 
     def MCCW(self, i: int, t1: int, t2: int, t3: int) -> Program:
-        self.JxOpen(i + 1)
-        yield Delay(t1)
-        self.SxN(i)
-        self.SxN(i - 1)
-        yield Delay(t2)
-        self.JxOpen(i)
-        yield Delay(t3)
-        self.JxCloseAll()
-        self.SxOffAll()
+        yield from self._rotation("MCCW", i, t1, t2, t3)
 
     def SCW(self, i: int, t1: int, t2: int, t3: int) -> Program:
-        self.JxOpen(i - 1)
-        yield Delay(t1)
-        self.SxN(i - 3)
-        self.SxP(i - 2)
-        yield Delay(t2)
-        self.JxOpen(i - 2)
-        yield Delay(t3)
-        self.JxCloseAll()
-        self.SxOffAll()
+        yield from self._rotation("SCW", i, t1, t2, t3)
 
     def SCCW(self, i: int, t1: int, t2: int, t3: int) -> Program:
-        self.JxOpen(i - 3)
-        self.JxOpen(i - 4)
-        yield Delay(t1)
-        self.SxN(i - 4)
         # The firmware energises S(i-5) negative; its own comment (and v2) says positive.
-        (self.SxN if self.profile.sccw_both_negative else self.SxP)(i - 5)
-        yield Delay(t2)
-        self.JxCloseAll()
-        yield Delay(t3)
-        self.SxOffAll()
+        yield from self._rotation("SCCW", i, t1, t2, t3)
 
     # -- the program ----------------------------------------------------------------------------
     def program(self) -> Program:

@@ -9,6 +9,7 @@ from typing import Iterable, Sequence
 import pytest
 from hypothesis import given, settings, strategies as st
 
+from bus import rotations
 from bus.lattice import MOVE_RULES, Cell, Direction, Joint, MoveRule, move_rule, rotate_about_vertex
 from bus.timing import TICK_NS
 from module_sim.physics import (
@@ -17,19 +18,11 @@ from module_sim.physics import (
     rotation_degrees,
 )
 
-# --- firmware sequences as data (spec §7), offsets relative to the argument i -----------
+# --- firmware sequences: the one table in bus.rotations (spec §7) -------------------------
 # ("open", k): JxOpen(i+k)   ("pos"/"neg", k): SxP/SxN(i+k)   ("wait", "t1"): DelayXts(t1)
-MCW = (("open", 0), ("open", 1), ("wait", "t1"), ("neg", 0), ("neg", -1), ("wait", "t2"),
-       ("close_all",), ("wait", "t3"), ("off_all",))
-MCCW = (("open", 1), ("wait", "t1"), ("neg", 0), ("neg", -1), ("wait", "t2"), ("open", 0),
-        ("wait", "t3"), ("close_all",), ("off_all",))
-SCW = (("open", -1), ("wait", "t1"), ("neg", -3), ("pos", -2), ("wait", "t2"), ("open", -2),
-       ("wait", "t3"), ("close_all",), ("off_all",))
-#: Appendix A as it ran: S(i-5) negative although the comment says positive (spec §12).
-SCCW_THESIS = (("open", -3), ("open", -4), ("wait", "t1"), ("neg", -4), ("neg", -5),
-               ("wait", "t2"), ("close_all",), ("wait", "t3"), ("off_all",))
-#: Profile v2: the comment's intent, S(i-5) positive.
-SCCW_V2 = tuple(("pos", -5) if s == ("neg", -5) else s for s in SCCW_THESIS)
+MCW, MCCW, SCW = rotations.MCW, rotations.MCCW, rotations.SCW
+SCCW_THESIS = rotations.SCCW_AS_RAN  # Appendix A as it ran: S(i-5) negative (spec §12)
+SCCW_V2 = rotations.SCCW  # the comment's intent: S(i-5) positive
 
 THESIS_TIMING = {"t1": 8, "t2": 4, "t3": 9}
 
