@@ -141,9 +141,7 @@ class Reason(str, Enum):
 
 
 @dataclass(frozen=True)
-class MoveStarted:
-    """The mobile broke away at ``t_ns``; the rotation began at ``started_ns``."""
-
+class _Move:
     module: str
     t_ns: int
     started_ns: int
@@ -151,21 +149,20 @@ class MoveStarted:
     to_cell: Cell
     pivot_joint_global: Joint
     direction: Direction
+
+
+@dataclass(frozen=True)
+class MoveStarted(_Move):
+    """The mobile broke away at ``t_ns``; the rotation began at ``started_ns``."""
+
     substrate: str
 
 
 @dataclass(frozen=True)
-class MoveCompleted:
+class MoveCompleted(_Move):
     """The module arrived in ``to_cell`` at ``t_ns``. ``participants``: the mobile, the
     substrate and the mobile's other neighbours when it started (energy attribution)."""
 
-    module: str
-    t_ns: int
-    started_ns: int
-    from_cell: Cell
-    to_cell: Cell
-    pivot_joint_global: Joint
-    direction: Direction
     orientation_before: int
     orientation_after: int
     substrate: str
@@ -173,10 +170,7 @@ class MoveCompleted:
 
 
 @dataclass(frozen=True)
-class MoveRefused:
-    """An attempt (a negative magnet pair) ended without a move; ``reason`` is the
-    furthest check the attempt failed (see docs/physics.md)."""
-
+class _Report:
     module: str
     t_ns: int
     reason: Reason
@@ -185,14 +179,14 @@ class MoveRefused:
 
 
 @dataclass(frozen=True)
-class Fault:
-    """A physical fault: both relays of a side on, or a rotation stalled half-way."""
+class MoveRefused(_Report):
+    """An attempt (a negative magnet pair) ended without a move; ``reason`` is the
+    furthest check the attempt failed (see docs/physics.md)."""
 
-    module: str
-    t_ns: int
-    reason: Reason
-    detail: str
-    data: dict[str, Any] = field(default_factory=dict, compare=False)
+
+@dataclass(frozen=True)
+class Fault(_Report):
+    """A physical fault: both relays of a side on, or a rotation stalled half-way."""
 
 
 Outcome = Union[MoveStarted, MoveCompleted, MoveRefused, Fault]
