@@ -14,7 +14,7 @@ import json
 from dataclasses import asdict, dataclass, field
 from typing import Any, Callable
 
-from .clock import Clock, Timer
+from .clock import Clock
 
 
 @dataclass
@@ -105,7 +105,3 @@ class IrTransmitter:
         self._put(self._key, b.to_json())
         return b
 
-
-def cancel_all(timers: list[Timer]) -> None:
-    for t in timers:
-        t.cancel()

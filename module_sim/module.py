@@ -40,7 +40,10 @@ class VirtualModule:
         self._sniff(self.ctrl.uart1, Link.DEBUG, self.ctrl.name, "terminal")
         # IR: bursts out on the bus, light in from the world's medium
         self._ir_out = IrTransmitter(bus.put, bus.keys.ir_tx(self.comm.name), self.comm.name)
-        self._ir_frames = {k: Framer(Link.CENTRE if k == 0 else Link.SIDE) for k in range(7)}
+        # one framer per transceiver: the centre carries centre-link frames, sides side-link ones
+        self._ir_frames = {k: self._framer_publisher(Link.CENTRE if k == 0 else Link.SIDE,
+                                                     self.comm.name, "pc" if k == 0 else f"side{k}",
+                                                     channel=k) for k in range(7)}
         self.comm.uart1.on_tx = self._ir_tx
         self._ir_in = IrReceiver(clock, self._ir_rx)
         for board in (self.ctrl, self.comm):
@@ -94,11 +97,7 @@ class VirtualModule:
             return  # channel Y7 is not wired: the light goes nowhere
         u = self.comm.uart1
         self._ir_out.send(k, data, starts, u.byte_ns)
-        ends = [s + u.byte_ns for s in starts]
-        dst = "pc" if k == 0 else f"side{k}"
-        for t in self._ir_frames[k].feed(data, ends):
-            self.bus.clock.call_at(t.t_last_ns, self._publish_frame, t.frame, self.comm.name, dst,
-                                   t.t_last_ns, t.t_first_ns - u.byte_ns, k)
+        self._ir_frames[k](data, starts, u.byte_ns)
 
     def _ir_rx(self, transceiver: int, byte: int, start: int, corrupt: bool) -> None:
         if self.comm.accepts_ir(transceiver, start):

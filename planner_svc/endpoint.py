@@ -10,9 +10,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable
 
-from bus.codec import Frame, Kind, Link, encode_command, parse
+from bus.codec import Frame, Kind, Link, encode_command
 from bus.framer import Framer
-from bus.functions import Function, lookup
+from bus.functions import Function
 from bus.ir import IrReceiver, IrTransmitter
 from bus.keys import PC
 from bus.timing import NS_PER_S, byte_time_ns
@@ -93,16 +93,16 @@ class PcEndpoint:
         clock = self.bus.clock
         deadline = clock.now_ns() + int(timeout_s * NS_PER_S)
         found: list[Received] = []
+        scan = [start]  # next index of ``received`` to look at
 
         def done() -> bool:
-            while len(found) == 0 and self._scan < len(self.received):
-                r = self.received[self._scan]
-                self._scan += 1
+            while not found and scan[0] < len(self.received):
+                r = self.received[scan[0]]
+                scan[0] += 1
                 if pred(r.frame):
                     found.append(r)
             return bool(found)
 
-        self._scan = start
         clock.run(until=done, until_ns=deadline)
         if not found:
             seen = [r.frame.describe() for r in self.received[start:]]
@@ -128,8 +128,4 @@ def _predicate(match: Callable[[Frame], bool] | str | None, fields: dict) -> Cal
     return lambda f: base(f) and all(f.view.get(k) == v for k, v in fields.items())
 
 
-def parse_centre(raw: bytes) -> Frame:
-    return parse(Link.CENTRE, raw)
-
-
-__all__ = ["ExpectTimeout", "PcEndpoint", "Received", "lookup"]
+__all__ = ["ExpectTimeout", "PcEndpoint", "Received"]
