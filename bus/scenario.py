@@ -16,12 +16,13 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from .faults import ActuatorFault, FaultSpecError
 from .lattice import Cell, matrix_to_cells
 
 PROFILES = ("v2", "thesis-2009")
 KINDS = ("virtual", "real")
 _TOP_KEYS = {"name", "description", "profile", "seed", "fixed", "goal", "goal_matrix", "initial",
-             "initial_matrix", "obstacles", "modules", "ir_baud", "bit_error_rate"}
+             "initial_matrix", "obstacles", "modules", "ir_baud", "bit_error_rate", "faults"}
 _MODULE_KEYS = {"cell", "id", "kind", "orientation", "port", "debug_port"}
 
 
@@ -52,6 +53,7 @@ class Scenario:
     source: str = "<built-in>"
     ir_baud: int = 300
     bit_error_rate: float = 0.0
+    faults: list[ActuatorFault] = field(default_factory=list)  # injected by the world
 
     @property
     def initial(self) -> list[Cell]:
@@ -239,6 +241,18 @@ def _build(d: dict[str, Any], source: str, text: str) -> Scenario:
     ber = d.get("bit_error_rate", 0.0)
     if not isinstance(ber, (int, float)) or not 0 <= ber < 1:
         raise _err(source, text, "bit_error_rate", "a probability 0 <= p < 1", ber)
+    faults = []
+    raw_faults = d.get("faults", [])
+    if not isinstance(raw_faults, list):
+        raise _err(source, text, "faults", "an array of fault strings such as \"m3.S2-:off\"", raw_faults)
+    for i, spec in enumerate(raw_faults):
+        try:
+            f = ActuatorFault.parse(str(spec))
+        except FaultSpecError as exc:
+            raise ScenarioError(f"{source}: {_line_of(text, 'faults')}key 'faults[{i}]': {exc}") from None
+        if int(f.module[1:]) not in seen_ids:
+            raise _err(source, text, f"faults[{i}]", "a fault on a module of this scenario", spec)
+        faults.append(f)
     return Scenario(name=name, modules=modules, fixed=fixed, goal=goal, obstacles=obstacles,
                     profile=profile, seed=seed, description=str(d.get("description", "")),
-                    source=source, ir_baud=ir_baud, bit_error_rate=float(ber))
+                    source=source, ir_baud=ir_baud, bit_error_rate=float(ber), faults=faults)

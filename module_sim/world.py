@@ -1,6 +1,8 @@
 """The world: ground truth of where modules are, their optical switches, and the IR medium.
 
-It publishes poses (``world/pose/<module>``) and optical switches
+Its :class:`module_sim.mechanics.Mechanics` turns actuator records into moves, refusals,
+faults and energy (``world/event``, ``world/energy``). It publishes poses
+(``world/pose/<module>``) and optical switches
 (``world/switches/<module>``), and carries IR light: a burst on ``ir/tx/<src>`` is
 forwarded on ``ir/rx/<dst>`` to every transceiver the light reaches —
 
@@ -26,6 +28,9 @@ from bus.lattice import Cell, Side, body_to_global, global_to_body
 from bus.messages import Pose
 from bus.scenario import Scenario
 from bus.transport import Bus
+
+from .mechanics import Mechanics
+from .physics import MoveCompleted
 
 
 @dataclass
@@ -53,6 +58,21 @@ class World:
         self._air: dict[tuple[str, int], list[list]] = {}
         self.collisions = 0
         bus.subscribe(bus.keys.ir_tx_all, self._on_ir)
+        self.mechanics = Mechanics(bus, self.bodies, self.obstacles, self._moved,
+                                   faults=list(scenario.faults))
+
+    # -- moves ----------------------------------------------------------------------------------
+    def _moved(self, move: MoveCompleted) -> None:
+        """A rotation arrived: the body takes its new cell and orientation; the optical
+        switches of everyone change."""
+        b = self.bodies[move.module]
+        b.cell, b.orientation = move.to_cell, move.orientation_after
+        self._publish_pose(b)
+        self.publish_switches()
+
+    def occupancy(self) -> dict[Cell, str]:
+        """Cell -> module, the ground truth."""
+        return {b.cell: b.module for b in self.bodies.values()}
 
     # -- ground truth out ----------------------------------------------------------------------
     def start(self) -> None:

@@ -1,0 +1,151 @@
+"""The world's mechanics on the bus: actuator records in, moves, faults and energy out.
+
+Every virtual module publishes its actuator port bits on ``world/actuators/<m>``.
+:class:`Mechanics` feeds them (through any injected :mod:`bus.faults`) to the pure
+:class:`module_sim.physics.MotionJudge` and :class:`module_sim.energy.EnergyMeter`,
+wakes itself on the clock when a break-away, carry or arrival falls due, and publishes
+what happened on ``world/event`` (``move-started``, ``move-completed``,
+``move-refused``, ``fault``: always with the reason) and ``world/energy``. The
+:class:`module_sim.world.World` owns it and moves its bodies when a move completes.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import TYPE_CHECKING, Any, Callable
+
+from bus.faults import ActuatorFault, apply_all
+from bus.lattice import Cell
+from bus.messages import Actuators, Energy, WorldEvent
+from bus.transport import Bus
+
+from .energy import EnergyBreakdown, EnergyMeter
+from .physics import (Fault, ModuleSpec, MotionJudge, MoveCompleted, MoveRefused, MoveStarted,
+                      Outcome, PhysicsParams, orientation_after)
+
+if TYPE_CHECKING:
+    from .world import Body
+
+
+class Mechanics:
+    """Physics and energy of a fleet, driven by the actuator records on the bus."""
+
+    def __init__(self, bus: Bus, bodies: dict[str, "Body"], obstacles: set[Cell],
+                 on_moved: Callable[[MoveCompleted], None], *,
+                 faults: list[ActuatorFault] | None = None,
+                 params: PhysicsParams = PhysicsParams()) -> None:
+        self.bus = bus
+        self.params = params
+        self.judge = MotionJudge([ModuleSpec(b.module, b.cell, b.orientation, b.fixed)
+                                  for b in bodies.values()], obstacles, params)
+        self.meter = EnergyMeter()
+        self.on_moved = on_moved
+        self.faults: dict[str, list[ActuatorFault]] = {}
+        self.outcomes: list[Outcome] = []
+        self._commanded: dict[str, tuple[list[bool], list[int]]] = {}
+        self._wake_at: int | None = None
+        for f in faults or ():
+            self.inject(f)
+        bus.subscribe(f"{bus.keys.root}/world/actuators/*", self._on_actuators)
+        bus.subscribe(f"{bus.keys.root}/world/inject", self._on_inject)
+
+    # -- faults -------------------------------------------------------------------------------
+    def inject(self, fault: ActuatorFault) -> None:
+        """From now on the actuator behaves as ``fault`` says (re-applied to its current state)."""
+        if fault.module not in self._modules():
+            raise KeyError(f"fault {fault}: no module {fault.module!r} in this world")
+        self.faults.setdefault(fault.module, []).append(fault)
+        self.bus.put(self.bus.keys.world_event, WorldEvent(
+            "fault-injected", self.bus.clock.now_ns(), fault.module, "injected",
+            {"fault": str(fault), "detail": fault.describe()}).to_json())
+        if fault.module in self._commanded:
+            self._feed(fault.module, self.bus.clock.now_ns(), *self._commanded[fault.module])
+
+    def _on_inject(self, key: str, payload: bytes) -> None:
+        spec = json.loads(payload).get("fault", "")
+        try:
+            self.inject(ActuatorFault.parse(spec))
+        except (ValueError, KeyError) as exc:
+            self.bus.event("world", "bad-injection", detail=str(exc), spec=spec)
+
+    def _modules(self) -> set[str]:
+        return set(self.judge.occupancy().values())
+
+    # -- actuators in --------------------------------------------------------------------------
+    def _on_actuators(self, key: str, payload: bytes) -> None:
+        a = Actuators.from_json(payload)
+        if a.module not in self._modules():
+            return  # a module the world does not hold (another fleet's stand-in, say)
+        self._commanded[a.module] = (list(a.joints_open), list(a.magnets))
+        self._feed(a.module, a.sim_time_ns, list(a.joints_open), list(a.magnets))
+
+    def _feed(self, module: str, t_ns: int, joints: list[bool], magnets: list[int]) -> None:
+        t = max(t_ns, self.judge.now_ns)  # wall clock: a record may lag the judge a little
+        joints, magnets = apply_all(self.faults.get(module, ()), joints, magnets)
+        self.meter.on_actuators(module, t, joints, magnets)
+        self._handle(self.judge.on_actuators(module, t, joints, magnets))
+
+    def _wake(self) -> None:
+        self._wake_at = None
+        now = self.bus.clock.now_ns()
+        self._handle(self.judge.advance(max(now, self.judge.now_ns)))
+
+    def _reschedule(self) -> None:
+        due = self.judge.next_deadline()
+        if due is not None and (self._wake_at is None or due < self._wake_at):
+            self._wake_at = due
+            self.bus.clock.call_at(due, self._wake)
+
+    # -- outcomes out --------------------------------------------------------------------------
+    def _handle(self, outcomes: list[Outcome]) -> None:
+        for o in outcomes:
+            self.outcomes.append(o)
+            if isinstance(o, MoveStarted):
+                self._publish_started(o)
+            elif isinstance(o, MoveCompleted):
+                self._publish_completed(o)
+            elif isinstance(o, (MoveRefused, Fault)):
+                kind = "move-refused" if isinstance(o, MoveRefused) else "fault"
+                self._event(kind, o.t_ns, o.module, o.reason.value,
+                            {"detail": o.detail, **o.data})
+        self._reschedule()
+
+    def _event(self, kind: str, t_ns: int, module: str, reason: str, data: dict[str, Any]) -> None:
+        ev = WorldEvent(kind, t_ns, module, reason, json.loads(json.dumps(data, default=str)))
+        self.bus.put(self.bus.keys.world_event, ev.to_json())
+
+    def _publish_started(self, o: MoveStarted) -> None:
+        before = self.judge.orientation(o.module)
+        pivot = o.from_cell.vertex(int(o.pivot_joint_global))
+        self._event("move-started", o.t_ns, o.module, "", {
+            "from": list(o.from_cell), "to": list(o.to_cell), "pivot": list(pivot),
+            "direction": o.direction.value, "joint": int(o.pivot_joint_global),
+            "substrate": o.substrate, "started_ns": o.started_ns,
+            "duration_ns": self.params.rotation_ns, "orientation_before": before,
+            "orientation_after": orientation_after(before, o.direction)})
+
+    def _publish_completed(self, o: MoveCompleted) -> None:
+        e = self.meter.record_move(o)
+        self._event("move-completed", o.t_ns, o.module, "", {
+            "from": list(o.from_cell), "to": list(o.to_cell), "direction": o.direction.value,
+            "joint": int(o.pivot_joint_global), "substrate": o.substrate,
+            "duration_ns": o.t_ns - o.started_ns, "orientation_before": o.orientation_before,
+            "orientation_after": o.orientation_after, "energy_j": round(e.total_j, 6)})
+        self.on_moved(o)
+        run = self.run_energy()
+        self.bus.put(self.bus.keys.world_energy, Energy(
+            o.t_ns, o.module, e.total_j, run.total_j,
+            {k: round(v, 6) for k, v in e.by_actuator().items()}).to_json())
+
+    # -- queries ------------------------------------------------------------------------------
+    def run_energy(self) -> EnergyBreakdown:
+        """Energy of the run so far: all actuator on-time plus the logic of every move."""
+        return self.meter.run_energy(max(self.bus.clock.now_ns(), self.judge.now_ns))
+
+    def publish_run_energy(self) -> EnergyBreakdown:
+        """Publish the run total (module None, move_j 0) and return it."""
+        run = self.run_energy()
+        self.bus.put(self.bus.keys.world_energy, Energy(
+            self.bus.clock.now_ns(), None, 0.0, run.total_j,
+            {k: round(v, 6) for k, v in run.by_actuator().items()}).to_json())
+        return run
