@@ -54,6 +54,7 @@ class Clock(ABC):
         self._arrivals = itertools.count()
         self._stopped = False
         self.error: BaseException | None = None
+        self.started_ns = 0  # now_ns() when the clock was made (wall clocks: Unix time)
 
     # -- time -----------------------------------------------------------------------
     @abstractmethod
@@ -129,6 +130,18 @@ class VirtualClock(Clock):
     def now_ns(self) -> int:
         return self._now
 
+    def call_at(self, t_ns: int, fn: Callable[..., Any], *args: Any) -> Timer:
+        # Only the clock thread schedules (other threads ``post``), and nobody waits for a
+        # timer to be added: no lock, no notify.
+        now = self._now
+        t = int(t_ns)
+        timer = Timer(t if t > now else now, fn, args)
+        heapq.heappush(self._heap, (timer.t_ns, next(self._tie), timer))
+        return timer
+
+    def call_later(self, delay_ns: int, fn: Callable[..., Any], *args: Any) -> Timer:
+        return self.call_at(self._now + int(delay_ns), fn, *args)
+
     def expect(self, n: int) -> None:
         if n:
             with self._lock:
@@ -143,6 +156,11 @@ class VirtualClock(Clock):
     def _settle(self) -> None:
         """Wait for every sample in flight, then handle the inbox in publish order."""
         while True:
+            # Fast path, without the lock: nothing in flight means every delivery has already
+            # been posted (``post`` comes before ``delivered``), and only this thread adds to
+            # the count, so an empty inbox now stays empty.
+            if self._in_flight <= 0 and not self._inbox:
+                return
             with self._lock:
                 if self._in_flight > 0:
                     deadline = time.monotonic() + self._barrier_timeout_s
@@ -191,10 +209,14 @@ class WallClock(Clock):
 
     def __init__(self) -> None:
         super().__init__()
-        self._t0 = time.monotonic_ns()
+        # One time base for every process on the host: IR bursts carry their byte start
+        # times, and a receiver in another process schedules them on its own clock.
+        self._offset = time.time_ns() - time.monotonic_ns()
+        self.started_ns = self.now_ns()
 
     def now_ns(self) -> int:
-        return time.monotonic_ns() - self._t0
+        """Unix time in ns, advanced monotonically (the same in every process)."""
+        return time.monotonic_ns() + self._offset
 
     def run(self, *, until_ns: int | None = None, until: Callable[[], bool] | None = None,
             timeout_s: float | None = None) -> None:

@@ -136,6 +136,15 @@ _VERTEX_OFFSET: dict[Joint, tuple[float, float]] = {
 }
 
 
+def rotate_offset(offset: tuple[int, int], steps: int) -> tuple[int, int]:
+    """Turn a cell offset by ``steps`` sides clockwise: the offset of side s becomes the
+    offset of side s + steps (a frame whose side 1 is global side 1 + steps)."""
+    x, y = offset
+    for _ in range(steps % 6):
+        x, y = x + y, -x
+    return x, y
+
+
 # --- body frame <-> global frame --------------------------------------------------
 def body_to_global(side: int, yref: int) -> Side:
     """Global side of body side ``side`` for a module whose ``Yref`` is ``yref``.

@@ -20,7 +20,9 @@ op             control board           comm board LED mirror
 
 from __future__ import annotations
 
-from typing import Callable, Iterator
+from typing import Callable, Iterator, NamedTuple
+
+from .lattice import Joint, MoveRule
 
 Step = tuple  # ("open", k) | ("wait", "t1") | ("close_all",) ...
 
@@ -63,3 +65,27 @@ def perform(name: str, i: int, t1: int, t2: int, t3: int, *,
             actions[op](i + arg[0])
         else:
             actions[op]()
+
+
+class RotationArgs(NamedTuple):
+    """Arguments ``mi`` (mobile) and ``si`` (substrate) of MCW/SCW, MCCW/SCCW and of
+    the combined codes CW (67) and CCW (68)."""
+
+    mi: int
+    si: int
+
+
+def rotation_arguments(rule: MoveRule, mobile_orientation: int,
+                       substrate_orientation: int) -> RotationArgs:
+    """The (mi, si) that make the firmware perform the Table 4-3 move ``rule``.
+
+    Both are the global pivot joint j written in each module's own body frame:
+    ``mi = j - o_mobile``, ``si = j - o_substrate`` (folded into 1..6). Then
+    MCW/MCCW(mi) energise the mobile's body sides mi-1, mi (global j-1, j: both sides at
+    the pivot); SCW(si) repels with body side si-3 = global j+3 (facing the mobile across
+    its side j) and attracts with si-2 = global j+4; SCCW(si) repels with si-4 = global
+    j+2 (facing the mobile across its side j-1) and attracts with si-5 = global j+1.
+    """
+    j = int(rule.joint)
+    return RotationArgs(int(Joint.of(j - mobile_orientation)),
+                        int(Joint.of(j - substrate_orientation)))

@@ -7,6 +7,7 @@ byte occupies ten bit times on the wire.
 
 from __future__ import annotations
 
+import math
 from enum import Enum
 
 NS_PER_S = 1_000_000_000
@@ -57,3 +58,13 @@ def wire_time_ns(n_bytes: int, baud: int) -> int:
 
 def ticks_ns(ticks: int) -> int:
     return ticks * TICK_NS
+
+
+def localize_slot_ticks(baud: int) -> int:
+    """v2 localization: one slot carries preamble, role and MSG1 (15 bytes) plus guards."""
+    return math.ceil(15 * byte_time_ns(baud) / TICK_NS) + 3
+
+
+def localize_step_ticks(baud: int) -> int:
+    """v2 localization: a step is 6 listener windows of 6 sender slots."""
+    return 36 * localize_slot_ticks(baud)

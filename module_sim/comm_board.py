@@ -16,7 +16,8 @@ from bus.functions import ACK_UNKNOWN, FUNCTIONS, Board, FunctionCode as F
 from bus.lattice import Cell, Side, body_to_global
 from bus.pins import IR_SEL_MASK, LED_JOINT, LED_NEG, LED_POS, Pin, fold, ir_select_bits, ir_selected
 from bus.timing import (ECHO_TIMEOUT_TICKS, HANDSHAKE_RETRY_TICKS, LOCALIZE_LISTEN_TICKS,
-                        SUBSTRATE_ACK_DELAY_TICKS, TICK_NS, Baud, byte_time_ns)
+                        SUBSTRATE_ACK_DELAY_TICKS, TICK_NS, Baud, byte_time_ns,
+                        localize_slot_ticks)
 
 from .avr import TIMEOUT, Delay, Mcu, Program, Rx, Tx, Uart
 from .profiles import Profile
@@ -24,16 +25,6 @@ from .profiles import Profile
 _STAR, _R, _L = ord("*"), ord("R"), ord("L")
 #: Relay frames of these functions carry 0, not 'N', as their first argument (Appendix A).
 _ZERO_ARG = {F.JxOpenAll, F.JxCloseAll}
-
-
-def localize_slot_ticks(baud: int) -> int:
-    """v2 localization: one slot carries preamble, role and MSG1 (15 bytes) plus guards."""
-    return math.ceil(15 * byte_time_ns(baud) / TICK_NS) + 3
-
-
-def localize_step_ticks(baud: int) -> int:
-    """v2 localization: a step is 6 listener windows of 6 sender slots."""
-    return 36 * localize_slot_ticks(baud)
 
 
 class CommBoard(Mcu):

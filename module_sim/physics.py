@@ -31,9 +31,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import Any, Iterable, NamedTuple, Sequence, Union
+from typing import Any, Iterable, Sequence, Union
 
 from bus.lattice import Cell, Direction, Joint, MoveRule, Side, move_rule
+from bus.rotations import RotationArgs, rotation_arguments  # noqa: F401 (re-exported)
 from bus.timing import NS_PER_S, TICK_NS
 
 # --- constants -----------------------------------------------------------------------
@@ -96,30 +97,6 @@ def latch_joint(side: int) -> Joint:
     """The solenoid (vertex) whose pin latches a module to its neighbour across
     ``side``: the vertex where the side ends (side k runs from joint k to joint k+1)."""
     return Joint.of(side + 1)
-
-
-class RotationArgs(NamedTuple):
-    """Arguments ``mi`` (mobile) and ``si`` (substrate) of MCW/SCW, MCCW/SCCW and of
-    the combined codes CW (67) and CCW (68)."""
-
-    mi: int
-    si: int
-
-
-def rotation_arguments(rule: MoveRule, mobile_orientation: int,
-                       substrate_orientation: int) -> RotationArgs:
-    """The (mi, si) that make the firmware perform the Table 4-3 move ``rule``.
-
-    Both are the global pivot joint j written in each module's own body frame:
-    ``mi = j - o_mobile``, ``si = j - o_substrate`` (folded into 1..6). Then
-    MCW/MCCW(mi) energise the mobile's body sides mi-1, mi (global j-1, j: both sides at
-    the pivot); SCW(si) repels with body side si-3 = global j+3 (facing the mobile across
-    its side j) and attracts with si-2 = global j+4; SCCW(si) repels with si-4 = global
-    j+2 (facing the mobile across its side j-1) and attracts with si-5 = global j+1.
-    """
-    j = int(rule.joint)
-    return RotationArgs(int(Joint.of(j - mobile_orientation)),
-                        int(Joint.of(j - substrate_orientation)))
 
 
 # --- outcomes -----------------------------------------------------------------------

@@ -17,6 +17,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--list", action="store_true", help="list the planners and exit")
     p.set_defaults(func=cmd_plan)
 
+    from .run import add_run_arguments, cmd_run
+    p = sub.add_parser("run", help="run a scenario: world, virtual fleet, planner (and recorder)",
+                       description="Boot the fleet, bring it up over the centre IR channel, plan, "
+                                   "command every move and verify it against the world. Prints "
+                                   "progress (step, moves, goal cells filled). Exit 0 when the "
+                                   "goal is reached, 1 with the reason otherwise.")
+    add_run_arguments(p, with_fleet=True)
+    p.set_defaults(func=cmd_run)
+
 
 def cmd_plan(args: argparse.Namespace) -> int:
     from bus.cli import UsageError

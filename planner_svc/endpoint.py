@@ -48,7 +48,9 @@ class PcEndpoint:
         """Send a command frame by name or code; returns the sim time its last byte ends."""
         return self.send_raw(encode_command(fn, *args, **kwargs))
 
-    def send_raw(self, data: bytes) -> int:
+    def send_raw(self, data: bytes, *, origin: str = "virtual") -> int:
+        """Send bytes as IR light; ``origin`` goes into the published frames (``"replay"``
+        for a recording played back)."""
         now = self.bus.clock.now_ns()
         start = max(now, self._line_free_at)
         starts = [start + k * self.byte_ns for k in range(len(data))]
@@ -56,11 +58,16 @@ class PcEndpoint:
         self._tx.send(0, data, starts, self.byte_ns)
         f = Framer(Link.PC)
         for t in f.feed(data) + f.flush():
-            self.bus.clock.call_at(self._line_free_at, self._publish, t.frame, start)
+            self.bus.clock.call_at(self._line_free_at, self._publish, t.frame, start, origin)
         return self._line_free_at
 
-    def _publish(self, frame: Frame, first: int) -> None:
-        self.bus.publish_frame(frame, src=self.name, dst="*", first_byte_ns=first, channel=0)
+    @property
+    def line_free_at(self) -> int:
+        """Sim time at which the last byte queued on the PC's transmitter ends."""
+        return self._line_free_at
+
+    def _publish(self, frame: Frame, first: int, origin: str = "virtual") -> None:
+        self.bus.publish_frame(frame, src=self.name, dst="*", first_byte_ns=first, channel=0, origin=origin)
 
     # -- receiving --------------------------------------------------------------------------------
     def _on_byte(self, transceiver: int, byte: int, start: int, corrupt: bool) -> None:

@@ -1,0 +1,165 @@
+"""Bring-up: from a powered fleet to the initial configuration I, over the centre channel.
+
+v2 modules: wait for the boot to finish; ``Select`` each module by id and read its
+``Report``; make the fixed module the reference (``Ref``); ``Localize`` step by step
+until every module reports L=1; read the reports again and build I from them.
+thesis-2009 modules cannot be addressed or read back: I comes from the scenario, and
+the bring-up says so.
+
+Positions come back in the reference's frame (it is (0,0), Yref 0 after ``Ref``). They
+are turned into the scenario's global frame with the fixed cell and the reference's
+declared orientation (:func:`bus.lattice.rotate_offset`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+from bus.functions import FunctionCode as F
+from bus.lattice import Cell, rotate_offset
+from bus.scenario import Scenario
+from bus.timing import NS_PER_S, TICK_NS, localize_step_ticks
+
+from .endpoint import ExpectTimeout, PcEndpoint
+
+#: The last boot banner (COMM. LISTENING) ends at ~7.5 s after power-up (docs/protocol.md).
+BOOT_S = 9.0
+#: Select modes (v2 code 60).
+SELECT_ALL, SELECT_ID, SELECT_NONE = 0, 1, 4
+RETRIES = 3
+
+
+class BringUpError(RuntimeError):
+    """The fleet could not be brought up; the message names the module and the cause."""
+
+
+@dataclass
+class ModuleState:
+    """What the PC believes about one module."""
+
+    id: int
+    cell: Cell
+    orientation: int  # global side = body side + orientation
+    localized: bool = False
+    kind: str = "virtual"
+
+
+@dataclass
+class Fleetview:
+    """The PC's belief: every module by id, and the cells they occupy."""
+
+    modules: dict[int, ModuleState] = field(default_factory=dict)
+    source: str = ""  # "location reports" or "scenario"
+
+    def at(self, cell: Cell) -> ModuleState | None:
+        return next((m for m in self.modules.values() if m.cell == cell), None)
+
+    def cells(self) -> frozenset[Cell]:
+        return frozenset(m.cell for m in self.modules.values())
+
+
+class BringUp:
+    """Runs the bring-up of a fleet through a :class:`PcEndpoint`."""
+
+    def __init__(self, pc: PcEndpoint, scenario: Scenario, *, profile: str | None = None,
+                 say: Callable[[str], None] = print) -> None:
+        self.pc = pc
+        self.scenario = scenario
+        self.profile = profile or scenario.profile
+        self.say = say
+        self.localize_steps = 0
+
+    # -- helpers ---------------------------------------------------------------------------------
+    def command(self, fn: int, *args: int, timeout_s: float = 5.0, what: str = "") -> None:
+        """Send and wait for the ACK of ``fn``, retrying lost answers (all bring-up
+        commands are idempotent)."""
+        last = ""
+        for _ in range(RETRIES):
+            mark = len(self.pc.received)
+            self.pc.send(fn, *args)
+            try:
+                self.pc.expect("ack", since=mark, timeout_s=timeout_s, byte=int(fn))
+                return
+            except ExpectTimeout as exc:
+                last = str(exc)
+        raise BringUpError(f"{what or F(fn).name}: no ACK {int(fn)} after {RETRIES} tries ({last})")
+
+    def select(self, ident: int) -> None:
+        self.command(F.Select, SELECT_ID, ident, 0, what=f"Select(m{ident})")
+
+    def report(self, ident: int) -> dict:
+        last = ""
+        for _ in range(RETRIES):
+            self.select(ident)
+            mark = len(self.pc.received)
+            self.pc.send(F.Report)
+            try:
+                r = self.pc.expect("position", since=mark, timeout_s=5.0, id=ident)
+                # the ACK follows the report: a module still talking misses the next frame
+                self.pc.expect("ack", since=self.pc.received.index(r) + 1, timeout_s=5.0,
+                               byte=int(F.Report))
+                return dict(r.frame.view)
+            except ExpectTimeout as exc:
+                last = str(exc)
+        raise BringUpError(f"m{ident}: no location report after {RETRIES} tries ({last})")
+
+    # -- the bring-up ----------------------------------------------------------------------------
+    def wait_boot(self, since_ns: int = 0) -> None:
+        clock = self.pc.bus.clock
+        until = since_ns + int(BOOT_S * NS_PER_S)
+        clock.run(until_ns=until, until=lambda: clock.now_ns() >= until)
+        banners = [r for r in self.pc.received if r.frame.kind.value == "banner"]
+        noise = sum(1 for r in self.pc.received if r.frame.is_noise)
+        self.say(f"bring-up: boot done at {clock.now_ns() / NS_PER_S:.1f} s: {len(banners)} banners "
+                 f"intact, {noise} noise frames (banners of modules booting together collide)")
+
+    def run(self, since_ns: int = 0) -> Fleetview:
+        self.wait_boot(since_ns)
+        if self.profile == "thesis-2009":
+            return self.from_scenario("thesis-2009 modules have no addressing and no location "
+                                      "report")
+        virtual_or_real = {m.id: m.kind for m in self.scenario.modules}
+        ref = self.scenario.fixed_module
+        for ident in sorted(virtual_or_real):
+            self.report(ident)  # every module answers: it is powered and addressable
+        self.select(ref.id)
+        self.command(F.Ref, what=f"Ref(m{ref.id})")
+        reports = {ref.id: self.report(ref.id)}
+        n = len(virtual_or_real)
+        while True:
+            pending = [i for i in sorted(virtual_or_real) if i not in reports or not reports[i]["localized"]]
+            for i in pending:
+                reports[i] = self.report(i)
+            pending = [i for i in pending if not reports[i]["localized"]]
+            if not pending:
+                break
+            if self.localize_steps >= n:
+                raise BringUpError(f"localization: {', '.join(f'm{i}' for i in pending)} still not "
+                                   f"localized after {self.localize_steps} steps (not connected to "
+                                   "the reference, or their side IR links fail)")
+            self.localize_step()
+        self.say(f"bring-up: localized {n} modules in {self.localize_steps} Localize step(s)")
+        view = Fleetview(source="location reports")
+        o_ref = ref.orientation
+        for i, r in reports.items():
+            dx, dy = rotate_offset((r["x"], r["y"]), o_ref)
+            view.modules[i] = ModuleState(i, Cell(self.scenario.fixed.x + dx, self.scenario.fixed.y + dy),
+                                          (r["yref"] + o_ref) % 6, True, virtual_or_real[i])
+        return view
+
+    def localize_step(self) -> None:
+        """One v2 ``Localize`` broadcast; returns when the step's slots have all passed."""
+        # a broadcast is executed by everyone and answered by no one (docs/protocol.md)
+        self.pc.send(F.Select, SELECT_ALL, 0, 0)
+        self.pc.send(F.Localize)
+        clock = self.pc.bus.clock
+        end = self.pc.line_free_at + (localize_step_ticks(self.scenario.ir_baud) + 5) * TICK_NS
+        clock.run(until_ns=end, until=lambda: clock.now_ns() >= end)
+        self.localize_steps += 1
+
+    def from_scenario(self, why: str) -> Fleetview:
+        self.say(f"bring-up: {why}: taking the initial configuration from scenario "
+                 f"{self.scenario.name!r}")
+        return Fleetview({m.id: ModuleState(m.id, m.cell, m.orientation, False, m.kind)
+                          for m in self.scenario.modules}, "scenario")

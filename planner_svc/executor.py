@@ -1,0 +1,189 @@
+"""Actuation: one planned move becomes frames on the centre channel, then is verified.
+
+For a move of the module at ``mobile`` (Table 4-3 row ``joint``/``direction``, about
+``substrate``), thesis Table 3-2 and the latch model (docs/physics.md):
+
+1. every other neighbour of the mobile opens the solenoid whose pin holds the mobile
+   (``Select`` + ``JxOpen``), and the mobile opens its own pins into those neighbours;
+2. one v2 ``Move(dir, mid, mi, sid, si, t1, t2, t3)`` starts both programs at once
+   (``mi``/``si``: :func:`bus.rotations.rotation_arguments`); both ACK, the substrate
+   one second later;
+3. the neighbours close their solenoids again;
+4. verification: the move is compared with the ground truth -- the world's
+   ``move-completed`` event and pose for a virtual module -- and the first divergence
+   stops the run with a :class:`MoveFailed` naming the module, the move and the cause
+   (the world's refusal or fault reason when it gave one).
+
+A real module has no world behind it: its belief follows the acknowledged move (and the
+location report, when the hil issue's bridge supplies one).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+from bus.functions import FunctionCode as F
+from bus.lattice import Cell, Direction, Joint, Side
+from bus.messages import Pose, WorldEvent
+from bus.rotations import rotation_arguments
+from bus.timing import NS_PER_S
+from bus.transport import Bus
+
+from .bringup import BringUp, Fleetview
+from .endpoint import ExpectTimeout, PcEndpoint
+from .rules import Move
+
+#: Thesis timing of a rotation (§7): t1 = 8, t2 = 4, t3 = 9 ticks.
+THESIS_TIMING = (8, 4, 9)
+#: How long to wait after the Move ACKs for the world to report the arrival.
+SETTLE_S = 2.0
+
+
+class MoveFailed(RuntimeError):
+    """A move that did not happen as planned; ``diagnosis`` says who, what and why."""
+
+    def __init__(self, diagnosis: str, module: int | None = None, move: Move | None = None,
+                 cause: str = "") -> None:
+        super().__init__(diagnosis)
+        self.diagnosis, self.module, self.move, self.cause = diagnosis, module, move, cause
+
+
+@dataclass
+class GroundTruth:
+    """What the world publishes, as seen on the bus (virtual modules only)."""
+
+    bus: Bus
+    poses: dict[str, Pose] = field(default_factory=dict)
+    events: list[WorldEvent] = field(default_factory=list)
+    energy_j: float = 0.0
+
+    def __post_init__(self) -> None:
+        root = self.bus.keys.root
+        self.bus.subscribe(f"{root}/world/pose/*", self._pose)
+        self.bus.subscribe(f"{root}/world/event", self._event)
+        self.bus.subscribe_json(f"{root}/world/energy", self._energy)
+
+    def _pose(self, key: str, payload: bytes) -> None:
+        p = Pose.from_json(payload)
+        self.poses[p.module] = p
+
+    def _event(self, key: str, payload: bytes) -> None:
+        self.events.append(WorldEvent.from_json(payload))
+
+    def _energy(self, key: str, d: dict) -> None:
+        self.energy_j = max(self.energy_j, float(d.get("run_j", 0.0)))
+
+    @property
+    def present(self) -> bool:
+        """Whether a world publishes on this bus (a fleet of virtual modules)."""
+        return bool(self.poses)
+
+
+class Executor:
+    """Drives planned moves through the PC endpoint and checks each against the truth."""
+
+    def __init__(self, pc: PcEndpoint, view: Fleetview, bringup: BringUp, truth: GroundTruth,
+                 *, timing: tuple[int, int, int] = THESIS_TIMING,
+                 say: Callable[[str], None] = print) -> None:
+        self.pc, self.view, self.bringup, self.truth = pc, view, bringup, truth
+        self.timing = timing
+        self.say = say
+        self.moves_done = 0
+
+    def _id_at(self, cell: Cell, what: str, move: Move) -> int:
+        m = self.view.at(cell)
+        if m is None:
+            raise MoveFailed(f"move {move}: the PC believes no module is at {what} {cell}",
+                             None, move, "belief")
+        return m.id
+
+    def execute(self, move: Move) -> None:
+        mid = self._id_at(move.mobile, "the mobile cell", move)
+        sid = self._id_at(move.substrate, "the substrate cell", move)
+        mob, sub = self.view.modules[mid], self.view.modules[sid]
+        rule = move.rule
+        mi, si = rotation_arguments(rule, mob.orientation, sub.orientation)
+        releases = self._releases(move, mid)
+        for ident, body_joint in releases:
+            self.bringup.select(ident)
+            self.bringup.command(F.JxOpen, body_joint, what=f"m{ident} JxOpen({body_joint})")
+        mark_ev = len(self.truth.events)
+        mark = len(self.pc.received)
+        d = 1 if rule.direction is Direction.CW else 2
+        self.pc.send(F.Move, d, mid, mi, sid, si, *self.timing)
+        desc = (f"m{mid} {move.mobile}->{move.goal} ({rule.direction.value} about joint "
+                f"{int(rule.joint)}, substrate m{sid} at {move.substrate})")
+        try:
+            self._wait_acks(mark, mid, sid, desc, move)
+        finally:
+            for ident, body_joint in releases:
+                if ident != mid:
+                    self.bringup.select(ident)
+                    self.bringup.command(F.JxClose, body_joint, what=f"m{ident} JxClose({body_joint})")
+        mob.cell = move.goal
+        mob.orientation = (mob.orientation + (2 if rule.direction is Direction.CW else -2)) % 6
+        self._verify(move, mid, desc, mark_ev)
+        self.moves_done += 1
+
+    def _releases(self, move: Move, mid: int) -> list[tuple[int, int]]:
+        """(module id, body joint) solenoids to open so the mobile can leave: for every
+        occupied neighbour other than the substrate, the neighbour's pin at the vertex
+        where its facing side ends, and the mobile's own pin where its side ends."""
+        out: list[tuple[int, int]] = []
+        mob = self.view.modules[mid]
+        for s in Side:
+            c = move.mobile.neighbour(s)
+            n = self.view.at(c)
+            if n is None or c == move.substrate:
+                continue
+            facing = s.facing
+            out.append((n.id, int(Joint.of(facing + 1 - n.orientation))))
+            out.append((mid, int(Joint.of(s + 1 - mob.orientation))))
+        return out
+
+    def _wait_acks(self, mark: int, mid: int, sid: int, desc: str, move: Move) -> None:
+        got: list[int] = []
+        try:
+            first = self.pc.expect("ack", since=mark, timeout_s=5.0)
+            got.append(first.frame.view.get("byte"))
+            nxt = self.pc.received.index(first) + 1
+            second = self.pc.expect("ack", since=nxt, timeout_s=5.0)
+            got.append(second.frame.view.get("byte"))
+        except ExpectTimeout:
+            noise = [r.frame.raw.hex() for r in self.pc.received[mark:] if r.frame.is_noise]
+            cause = "ACK missing" + (f" (noise on the centre channel: {noise})" if noise else "")
+            if not self.truth.present:
+                raise MoveFailed(f"move {desc}: {cause}; got ACKs {got}", mid, move, cause) from None
+            self.say(f"warning: move {desc}: {cause}; checking the world instead")
+
+    def _verify(self, move: Move, mid: int, desc: str, mark_ev: int) -> None:
+        if not self.truth.present:
+            return
+        name = f"m{mid}"
+        clock = self.pc.bus.clock
+        deadline = clock.now_ns() + int(SETTLE_S * NS_PER_S)
+
+        def settled() -> bool:
+            return any(e.module == name and e.kind in ("move-completed", "move-refused", "fault")
+                       for e in self.truth.events[mark_ev:])
+        clock.run(until=settled, until_ns=deadline)
+        mine = [e for e in self.truth.events[mark_ev:] if e.module == name]
+        done = [e for e in mine if e.kind == "move-completed"]
+        if not done:
+            bad = [e for e in self.truth.events[mark_ev:] if e.kind in ("move-refused", "fault")]
+            if bad:
+                e = next((x for x in bad if x.module == name), bad[0])
+                cause = f"{e.kind} {e.reason}: {e.data.get('detail', '')}"
+            else:
+                cause = "the world reports no move at all (no drive reached the modules)"
+            raise MoveFailed(f"move {desc} failed: {cause}", mid, move, cause)
+        to = done[-1].data.get("to")
+        pose = self.truth.poses.get(name)
+        if to != [move.goal.x, move.goal.y] or pose is None or (pose.x, pose.y) != tuple(move.goal):
+            raise MoveFailed(f"move {desc}: the world put m{mid} at {to}, planned {move.goal}",
+                             mid, move, "diverged")
+        belief = self.view.modules[mid].orientation
+        if pose.orientation != belief:
+            raise MoveFailed(f"move {desc}: m{mid} arrived with orientation {pose.orientation}, "
+                             f"the PC believes {belief}", mid, move, "diverged")

@@ -1,0 +1,149 @@
+"""``hexbench run`` and ``python -m planner_svc``: a planner run, with or without its fleet.
+
+``hexbench run <scenario>`` puts the world, the virtual modules, the planner service and
+(with ``--record``) the MCAP recorder on one bus and runs to the goal. ``python -m
+planner_svc <scenario>`` is the planner service alone: it joins a fleet started elsewhere
+(``hexbench fleet <scenario> --clock wall``) over zenoh.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+
+from bus.cli import UsageError
+
+
+def add_run_arguments(p: argparse.ArgumentParser, *, with_fleet: bool) -> None:
+    from bus.session import add_arguments
+
+    p.add_argument("scenario", help="a built-in scenario name or a .toml file")
+    p.add_argument("--planner", default="thesis-serial",
+                   help="planner name ('hexbench plan --list'), or script:<file>; "
+                        "default thesis-serial")
+    p.add_argument("--clock", choices=["virtual", "wall"], default="virtual" if with_fleet else "wall",
+                   help="virtual: deterministic and as fast as the CPU allows (one process); "
+                        "wall: real time, for hardware and other processes")
+    p.add_argument("--seed", type=int, help="override the scenario's seed")
+    p.add_argument("--profile", choices=["v2", "thesis-2009"], help="override the scenario's profile")
+    p.add_argument("--timing", default="8,4,9", metavar="T1,T2,T3",
+                   help="rotation delays in ticks (default: the thesis's 8,4,9)")
+    if with_fleet:
+        p.add_argument("--record", type=Path, metavar="FILE.mcap", help="record the run to MCAP")
+        p.add_argument("--fault", action="append", default=[], metavar="SPEC",
+                       help="inject an actuator fault through the world, e.g. m3.S2-:off or "
+                            "m3.J4:closed (repeatable)")
+    add_arguments(p)
+
+
+def _scenario(args: argparse.Namespace):
+    from bus.faults import ActuatorFault, FaultSpecError
+    from bus.scenario import ScenarioError, load
+
+    try:
+        sc = load(args.scenario)
+        faults = [ActuatorFault.parse(f) for f in getattr(args, "fault", [])]
+    except (ScenarioError, FaultSpecError) as exc:
+        raise UsageError(str(exc)) from None
+    ids = {f"m{m.id}" for m in sc.modules}
+    for f in faults:
+        if f.module not in ids:
+            raise UsageError(f"--fault {f}: scenario {sc.name!r} has no module {f.module}")
+    changes = {"faults": list(sc.faults) + faults}
+    if args.seed is not None:
+        changes["seed"] = args.seed
+    if args.profile:
+        changes["profile"] = args.profile
+    return dataclasses.replace(sc, **changes)
+
+
+def _timing(text: str) -> tuple[int, int, int]:
+    try:
+        t = tuple(int(v) for v in text.split(","))
+        if len(t) != 3 or not all(0 <= v <= 255 for v in t):
+            raise ValueError
+    except ValueError:
+        raise UsageError(f"--timing {text!r}: expected three tick counts 0..255, e.g. 8,4,9") from None
+    return t  # type: ignore[return-value]
+
+
+def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
+    from bus.clock import make_clock
+    from bus.keys import check_chunk
+    from bus.messages import RunMeta
+    from bus.session import SessionOptions
+    from bus.transport import Bus
+
+    from . import planners
+    from .service import PlannerService
+
+    scenario = _scenario(args)
+    if not args.planner.startswith(planners.SCRIPT_PREFIX):
+        try:
+            planners.get(args.planner)
+        except planners.UnknownPlanner as exc:
+            raise UsageError(str(exc)) from None
+    elif not Path(args.planner[len(planners.SCRIPT_PREFIX):]).is_file():
+        raise UsageError(f"--planner {args.planner}: no such script file")
+    timing = _timing(args.timing)
+    try:
+        check_chunk(args.fleet, "fleet")
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if not with_fleet and args.clock == "virtual":
+        raise UsageError("a planner in its own process needs --clock wall: a virtual clock cannot "
+                         "be shared with a fleet in another process")
+    opts = SessionOptions.from_args(args)
+    if args.clock == "virtual" and not (opts.connect or opts.listen):
+        opts.isolated = True  # a virtual run is one process; others would break determinism
+    clock = make_clock(args.clock)
+    bus = Bus(clock, args.fleet, options=opts)
+    recorder = None
+    try:
+        meta = RunMeta(scenario.name, scenario.profile, scenario.seed, args.planner, args.clock,
+                       list(sys.argv), {}, fleet=args.fleet)
+        if with_fleet and args.record:
+            from recordings.recorder import Recorder
+            recorder = Recorder(args.record, fleet=args.fleet, meta=meta)
+            recorder.attach(bus)
+        bus.put(bus.keys.meta, meta.to_json())
+        since = clock.now_ns()
+        print(f"run: scenario {scenario.name} ({len(scenario.modules)} modules, profile "
+              f"{scenario.profile}, seed {scenario.seed}), planner {args.planner}, clock {args.clock}"
+              + (f", faults {', '.join(map(str, scenario.faults))}" if scenario.faults else ""),
+              flush=True)
+        service = PlannerService(bus, scenario, args.planner, timing=timing,
+                                 say=lambda s: print(s, flush=True))
+        if with_fleet:  # after the service subscribed: it sees the world's first poses
+            from module_sim.fleet import Fleet
+            fleet = Fleet(bus, scenario)
+            fleet.power_up()
+        result = service.run(since)
+        if with_fleet:
+            fleet.world.mechanics.publish_run_energy()
+            clock.run(until_ns=clock.now_ns() + 1)  # let the last samples reach the recorder
+        print(result.summary(), flush=True)
+    finally:
+        if recorder is not None:
+            tally = recorder.close()
+            print(f"recorded {tally.frames} frames, {tally.messages} samples -> "
+                  f"{', '.join(map(str, recorder.paths))}", flush=True)
+        bus.close()
+    return 0 if result.ok else 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m planner_svc``: the planner service alone, joining a fleet on the bus."""
+    p = argparse.ArgumentParser(prog="python -m planner_svc",
+                                description="The PC on the bus: bring up, plan, actuate and verify "
+                                            "a fleet that runs in another process "
+                                            "('hexbench fleet <scenario> --clock wall').")
+    add_run_arguments(p, with_fleet=False)
+    args = p.parse_args(argv)
+    try:
+        return cmd_run(args, with_fleet=False)
+    except UsageError as exc:
+        print(f"python -m planner_svc: error: {exc}", file=sys.stderr)
+        return 2

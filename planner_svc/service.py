@@ -1,0 +1,166 @@
+"""The planner service: the PC on the bus, from power-up to the goal.
+
+It only talks to the bus (principle 1): a :class:`PcEndpoint` on the centre channel,
+plus the world's published ground truth when a virtual fleet is present. Layers:
+bring-up (:mod:`planner_svc.bringup`), planning (:mod:`planner_svc.planners`),
+actuation and verification (:mod:`planner_svc.executor`). Progress goes to stdout and
+to ``planner/progress``; the planner's view of each step to ``planner/state`` (replay
+overlays). ``script:<file>`` planners run a script (:mod:`planner_svc.script`) instead.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+from bus.lattice import Cell
+from bus.messages import PlannerProgress, PlannerState
+from bus.scenario import Scenario
+from bus.timing import NS_PER_S
+from bus.transport import Bus
+
+from . import planners, thesis
+from .bringup import BringUp, BringUpError, Fleetview
+from .endpoint import PcEndpoint
+from .executor import THESIS_TIMING, Executor, GroundTruth, MoveFailed
+from .plan import Plan, PlanError, Problem, validate
+from .rules import Move
+
+
+@dataclass
+class RunResult:
+    """How a run ended: ``ok`` when the goal is reached; ``reason`` otherwise."""
+
+    ok: bool
+    reason: str = ""
+    planner: str = ""
+    steps: int = 0
+    moves: int = 0
+    planned_moves: int = 0
+    planning_s: float = 0.0
+    sim_s: float = 0.0
+    wall_s: float = 0.0
+    energy_j: float = 0.0
+    energy_estimate_j: float = 0.0
+    localize_steps: int = 0
+    notes: list[str] = field(default_factory=list)
+
+    def summary(self) -> str:
+        status = "goal reached" if self.ok else f"FAILED: {self.reason}"
+        return (f"{self.planner}: {status}; steps {self.steps}, moves {self.moves}"
+                f" (planned {self.planned_moves}), planning {self.planning_s * 1000:.1f} ms, "
+                f"run {self.sim_s:.1f} s sim / {self.wall_s:.1f} s wall, energy "
+                f"{self.energy_j:.1f} J measured by the world"
+                f" ({self.energy_estimate_j:.1f} J estimated)")
+
+
+class PlannerService:
+    """Bring up, plan, actuate and verify one scenario through the bus."""
+
+    def __init__(self, bus: Bus, scenario: Scenario, planner: str, *,
+                 timing: tuple[int, int, int] = THESIS_TIMING,
+                 say: Callable[[str], None] = print) -> None:
+        self.bus = bus
+        self.scenario = scenario
+        self.planner_name = planner
+        self.say = say
+        self.pc = PcEndpoint(bus, baud=scenario.ir_baud)
+        self.truth = GroundTruth(bus)
+        self.bringup = BringUp(self.pc, scenario, say=say)
+        self.timing = timing
+        self.view: Fleetview | None = None
+
+    # -- progress out --------------------------------------------------------------------------
+    def _progress(self, step: int, moves: int, message: str, *, done: bool = False,
+                  ok: bool = True) -> None:
+        goal = set(self.scenario.goal)
+        filled = len(goal & set(self.view.cells())) if self.view else 0
+        self.bus.put(self.bus.keys.planner("progress"), PlannerProgress(
+            self.bus.clock.now_ns(), step, moves, filled, len(goal), message, done, ok).to_json())
+        self.say(f"[{self.bus.clock.now_ns() / NS_PER_S:8.2f} s] step {step:3} moves {moves:3} "
+                 f"goal {filled}/{len(goal)}  {message}")
+
+    def _state(self, step: int, moves: list[Move]) -> None:
+        occ = set(self.view.cells()) if self.view else set()
+        goal = set(self.scenario.goal)
+        electrons, voids = thesis.electrons_and_voids(occ, goal)
+        mobile = thesis.mobile_electrons(electrons, occ)
+        pv = thesis.potential_voids(voids, occ, mobile)
+        xy = lambda cs: [[c.x, c.y] for c in sorted(cs)]  # noqa: E731
+        values: dict[Cell, float] = {}
+        if moves and len(occ) <= 200:  # the value function of the first pair (thesis layer 4)
+            try:
+                _, vf = thesis.next_location(occ, goal, moves[0].mobile, moves[0].goal,
+                                             self.scenario.obstacles)
+                values = dict(vf.values)
+            except (ValueError, KeyError):
+                values = {}
+        self.bus.put(self.bus.keys.planner("state"), PlannerState(
+            self.bus.clock.now_ns(), step, self.planner_name, xy(occ), xy(goal), xy(electrons),
+            xy(voids), xy(mobile), xy(pv), [[[m.mobile.x, m.mobile.y], [m.goal.x, m.goal.y]]
+                                            for m in moves],
+            xy(values), [values[c] for c in sorted(values)]).to_json())
+
+    # -- the run -------------------------------------------------------------------------------
+    def run(self, since_ns: int = 0) -> RunResult:
+        t_wall = time.perf_counter()
+        result = RunResult(False, planner=self.planner_name)
+        try:
+            self._run(result, since_ns)
+        except (BringUpError, MoveFailed, PlanError) as exc:
+            result.ok = False
+            result.reason = str(exc)
+        result.sim_s = self.bus.clock.now_ns() / NS_PER_S
+        result.wall_s = time.perf_counter() - t_wall
+        result.energy_j = self.truth.energy_j
+        result.localize_steps = self.bringup.localize_steps
+        self._progress(result.steps, result.moves, result.summary(), done=True, ok=result.ok)
+        return result
+
+    def _run(self, result: RunResult, since_ns: int) -> None:
+        if self.planner_name.startswith(planners.SCRIPT_PREFIX):
+            from .script import run_script
+            self.bringup.wait_boot(since_ns)
+            run_script(self.planner_name[len(planners.SCRIPT_PREFIX):], self.pc, self.bringup,
+                       say=self.say)
+            result.ok, result.reason = True, "script finished"
+            return
+        planner = planners.get(self.planner_name)
+        self.view = self.bringup.run(since_ns)
+        if self.scenario.profile == "thesis-2009" and len(self.view.modules) > 2:
+            raise BringUpError("thesis-2009 modules have no addressing: every module executes "
+                               "every frame, so only a single mobile/substrate pair can be "
+                               "driven; use the v2 profile for larger fleets")
+        initial = self.view.cells()
+        if initial != frozenset(self.scenario.initial):
+            self.say("note: the localized configuration differs from the scenario's: "
+                     f"{sorted(map(str, initial ^ frozenset(self.scenario.initial)))}")
+        problem = Problem.of(initial, self.scenario.goal, self.scenario.fixed,
+                             self.scenario.obstacles, self.scenario.name)
+        plan: Plan = planner.plan(problem)
+        validate(plan)
+        result.planning_s, result.planned_moves = plan.seconds, plan.moves
+        result.energy_estimate_j = plan.energy_joules
+        result.notes = list(plan.notes)
+        self.say(f"plan: {plan.summary()}")
+        executor = Executor(self.pc, self.view, self.bringup, self.truth, timing=self.timing,
+                            say=self.say)
+        for n, step in enumerate(plan.steps, 1):
+            self._state(n, step)
+            for mv in step:
+                executor.execute(mv)
+                result.moves = executor.moves_done
+                self._progress(n, result.moves, f"moved {mv}")
+            result.steps = n
+        if not plan.ok:
+            raise PlanError(f"planner {self.planner_name} stopped: {plan.reason}")
+        if self.view.cells() != frozenset(self.scenario.goal):
+            raise MoveFailed("the moves were made but the belief is not the goal")
+        if self.truth.present:
+            truth = {Cell(p.x, p.y) for p in self.truth.poses.values()}
+            if truth != set(self.scenario.goal):
+                raise MoveFailed(f"the world does not match the goal: "
+                                 f"{sorted(map(str, truth ^ set(self.scenario.goal)))}")
+        self._state(result.steps + 1, [])
+        result.ok, result.reason = True, "goal reached"
