@@ -10,6 +10,9 @@ key                                        payload (JSON, docs/bus.md)
 ``world/actuators/<module>``               magnet/joint/LED port bits of a module
 ``world/event``                            move started/completed/refused, faults
 ``world/energy``                           energy per move and per run
+``world/switches/<module>``                a module's optical switches (body frame)
+``world/inject``                           inject an actuator fault (:mod:`bus.faults`)
+``world/sync``                             ask the world to republish poses and switches
 ``planner/<topic>``                        planner decisions and progress
 ``event/<src>``                            errors as data: overrun, collision, timeout
 ``clock``                                  virtual time announcements

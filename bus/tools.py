@@ -119,18 +119,14 @@ def cmd_monitor(args: argparse.Namespace) -> int:
 
 
 def _demo_placeholder(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("demo", help="the end-to-end demo (thesis-6 run, MCAP, rerun replay)")
+    p = sub.add_parser("demo", help="the end-to-end demo: thesis-6 run, MCAP, rerun replay",
+                       description="Run thesis-6 on virtual modules with the thesis planner, "
+                                   "record it to recordings/thesis-6.mcap and replay it to "
+                                   "recordings/thesis-6.rrd.")
+    p.add_argument("--out", help="directory for the files (default: the recordings package)")
     p.set_defaults(func=cmd_demo)
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    """Replaced by the full demo once the planner and recorder land (see README)."""
-    try:
-        from recordings.demo import run_demo  # type: ignore[import-not-found]
-    except ImportError:
-        print("hexbench demo: the end-to-end demo (thesis-6 on virtual modules, recorded to MCAP "
-              "and replayed in rerun) is coming. Meanwhile:\n"
-              "  hexbench decode --link pc 2a15040804090000000023\n"
-              "  hexbench scenarios thesis-6")
-        return 0
+    from recordings.demo import run_demo
     return run_demo(args)

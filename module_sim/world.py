@@ -58,6 +58,7 @@ class World:
         self._air: dict[tuple[str, int], list[list]] = {}
         self.collisions = 0
         bus.subscribe(bus.keys.ir_tx_all, self._on_ir)
+        bus.subscribe(f"{bus.keys.root}/world/sync", lambda k, p: self.start())
         self.mechanics = Mechanics(bus, self.bodies, self.obstacles, self._moved,
                                    faults=list(scenario.faults))
 
@@ -76,7 +77,8 @@ class World:
 
     # -- ground truth out ----------------------------------------------------------------------
     def start(self) -> None:
-        """Publish every pose and optical switch state (at time 0 of the run)."""
+        """Publish every pose and optical switch state: at power-up, and again whenever a
+        participant that joined late asks on ``world/sync``."""
         for b in self.bodies.values():
             self._publish_pose(b)
         self.publish_switches()
@@ -121,40 +123,36 @@ class World:
         return [(other.module, int(global_to_body(Side(g).facing, other.orientation)))]
 
     def _on_ir(self, key: str, payload: bytes) -> None:
-        b = Burst.from_dict(json.loads(payload))
+        from bus.ir import Air, forwarded, garble_fixes  # (kept local: this method's own helpers)
+        d = json.loads(payload)
+        src, n, data, starts, byte_ns = d["src"], d["burst"], bytes.fromhex(d["data"]), d["starts"], \
+            d["byte_ns"]
         now = self.bus.clock.now_ns()
-        for dst, rx in self._receivers(b.src, b.transceiver):
-            air = self._air.setdefault((dst, rx), [])
-            air[:] = [a for a in air if a[0] > now]
-            values = list(b.data)
-            corrupt = [False] * len(values)
-            garbled: dict[tuple[str, int], tuple[list[int], list[int]]] = {}
-            for i, (start, v) in enumerate(zip(b.starts, b.data)):
-                end = start + b.byte_ns
-                for a in air:
-                    if a[3] != b.src and a[1] < end and start < a[0]:
-                        mixed = a[2] & values[i]
-                        values[i] = mixed
-                        corrupt[i] = True
-                        a[2] = mixed
-                        idx, vals = garbled.setdefault((a[3], a[4]), ([], []))
-                        idx.append(a[5])
-                        vals.append(mixed)
+        bus = self.bus
+        clean_head = None
+        for dst, rx in self._receivers(src, d["transceiver"]):
+            air = self._air.get((dst, rx))
+            if air is None:
+                air = self._air[(dst, rx)] = Air()
+            values, corrupt, fixes, sources = air.collide(src, n, data, starts, byte_ns, now)
             if self.ber:
                 for i in range(len(values)):
                     for bit in range(8):
                         if self._rng.random() < self.ber:
                             values[i] ^= 1 << bit
                             corrupt[i] = True
-            for (src, n), (idx, vals) in garbled.items():
-                self.bus.put(self.bus.keys.ir_rx(dst), garble_message(src, n, dst, idx, vals, b.src))
-            if garbled:
+            rx_key = bus.keys.ir_rx(dst)
+            if fixes:
+                bus.put(rx_key, garble_fixes(dst, src, fixes))
+            if sources:
                 self.collisions += 1
-                self.bus.event(WORLD, "collision", receiver=dst, transceiver=rx,
-                               sources=sorted({s for s, _ in garbled} | {b.src}),
-                               received=bytes(values).hex())
-            air.extend([s + b.byte_ns, s, v, b.src, b.burst, i]
-                       for i, (s, v) in enumerate(zip(b.starts, values)))
-            out = Burst(b.src, b.burst, b.transceiver, bytes(values), b.starts, b.byte_ns, dst, rx,
-                        corrupt)
-            self.bus.put(self.bus.keys.ir_rx(dst), out.to_json())
+                bus.event(WORLD, "collision", receiver=dst, transceiver=rx,
+                          sources=sorted(sources | {src}), received=bytes(values).hex())
+            air.add(src, n, values, corrupt, starts, byte_ns)
+            if True in corrupt:
+                bus.put(rx_key, Burst(src, n, d["transceiver"], bytes(values), starts, byte_ns, dst,
+                                      rx, corrupt).to_json())
+            else:  # the light arrives as sent: encode the common part once for all receivers
+                if clean_head is None:
+                    clean_head = forwarded(d, len(values))
+                bus.put(rx_key, clean_head(dst, rx))

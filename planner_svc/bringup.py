@@ -111,7 +111,7 @@ class BringUp:
         clock.run(until_ns=until, until=lambda: clock.now_ns() >= until)
         banners = [r for r in self.pc.received if r.frame.kind.value == "banner"]
         noise = sum(1 for r in self.pc.received if r.frame.is_noise)
-        self.say(f"bring-up: boot done at {clock.now_ns() / NS_PER_S:.1f} s: {len(banners)} banners "
+        self.say(f"bring-up: boot done at {(clock.now_ns() - clock.started_ns) / NS_PER_S:.1f} s: {len(banners)} banners "
                  f"intact, {noise} noise frames (banners of modules booting together collide)")
 
     def run(self, since_ns: int = 0) -> Fleetview:

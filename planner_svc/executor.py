@@ -63,6 +63,7 @@ class GroundTruth:
         self.bus.subscribe(f"{root}/world/pose/*", self._pose)
         self.bus.subscribe(f"{root}/world/event", self._event)
         self.bus.subscribe_json(f"{root}/world/energy", self._energy)
+        self.bus.put_json(f"{root}/world/sync", {"from": "planner"})  # a late joiner asks
 
     def _pose(self, key: str, payload: bytes) -> None:
         p = Pose.from_json(payload)

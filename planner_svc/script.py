@@ -79,7 +79,7 @@ def parse_script(text: str, source: str = "<script>") -> list[Action]:
             else:
                 raise ValueError(f"unknown action {verb!r}; actions: send, select, wait, expect")
         except (ValueError, KeyError) as exc:
-            raise ScriptError(f"{where}: {exc}") from None
+            raise ScriptError(f"{where}: {exc.args[0] if exc.args else exc}") from None
         out.append(Action(n, line, verb, tuple(args)))
     return out
 

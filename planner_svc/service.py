@@ -26,6 +26,7 @@ from .endpoint import PcEndpoint
 from .executor import THESIS_TIMING, Executor, GroundTruth, MoveFailed
 from .plan import Plan, PlanError, Problem, validate
 from .rules import Move
+from .script import ScriptError, run_script
 
 
 @dataclass
@@ -78,7 +79,8 @@ class PlannerService:
         filled = len(goal & set(self.view.cells())) if self.view else 0
         self.bus.put(self.bus.keys.planner("progress"), PlannerProgress(
             self.bus.clock.now_ns(), step, moves, filled, len(goal), message, done, ok).to_json())
-        self.say(f"[{self.bus.clock.now_ns() / NS_PER_S:8.2f} s] step {step:3} moves {moves:3} "
+        t = (self.bus.clock.now_ns() - self.bus.clock.started_ns) / NS_PER_S
+        self.say(f"[{t:8.2f} s] step {step:3} moves {moves:3} "
                  f"goal {filled}/{len(goal)}  {message}")
 
     def _state(self, step: int, moves: list[Move]) -> None:
@@ -108,10 +110,10 @@ class PlannerService:
         result = RunResult(False, planner=self.planner_name)
         try:
             self._run(result, since_ns)
-        except (BringUpError, MoveFailed, PlanError) as exc:
+        except (BringUpError, MoveFailed, PlanError, ScriptError) as exc:
             result.ok = False
             result.reason = str(exc)
-        result.sim_s = self.bus.clock.now_ns() / NS_PER_S
+        result.sim_s = (self.bus.clock.now_ns() - self.bus.clock.started_ns) / NS_PER_S
         result.wall_s = time.perf_counter() - t_wall
         result.energy_j = self.truth.energy_j
         result.localize_steps = self.bringup.localize_steps
@@ -120,7 +122,6 @@ class PlannerService:
 
     def _run(self, result: RunResult, since_ns: int) -> None:
         if self.planner_name.startswith(planners.SCRIPT_PREFIX):
-            from .script import run_script
             self.bringup.wait_boot(since_ns)
             run_script(self.planner_name[len(planners.SCRIPT_PREFIX):], self.pc, self.bringup,
                        say=self.say)
