@@ -1,4 +1,4 @@
-"""Subcommands over recordings: ``record``, ``info``, ``replay``."""
+"""Subcommands over recordings: ``record``, ``info``, ``replay`` (rerun, or back onto the bus)."""
 
 from __future__ import annotations
 
@@ -37,13 +37,31 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=cmd_info)
 
-    p = sub.add_parser("replay", help="replay a recording visually with rerun",
-                       description="Build a rerun recording of the run: lattice, modules, moves, "
-                                   "magnets, joints, LEDs, IR links, frames, planner overlays, plots.")
+    p = sub.add_parser("replay", help="replay a recording with rerun, or back onto the bus",
+                       description="--rrd/--spawn: build a rerun recording of the run (lattice, "
+                                   "modules, moves, magnets, joints, LEDs, IR links, frames, planner "
+                                   "overlays, plots). --to-bus: republish the frames of --links with "
+                                   "their recorded timing (PC frames as IR light, origin 'replay'). "
+                                   "--compare: rebuild the run (scenario, profile, seed from the "
+                                   "recording) on a virtual clock, replay --links into it and report "
+                                   "the first frame on the other links that differs; exit 1 if one does.")
+    add_arguments(p)
     p.add_argument("file", type=Path, help="a .mcap file (or the stem of rotated parts)")
     p.add_argument("--rrd", type=Path, help="write the replay to this .rrd file")
     p.add_argument("--spawn", action="store_true", help="open a rerun viewer")
     p.add_argument("--anim-ms", type=float, default=20.0, help="animation step of moves (default 20 ms)")
+    g = p.add_argument_group("bus replay")
+    g.add_argument("--to-bus", action="store_true",
+                   help="republish the recorded frames of --links on the bus (wall clock)")
+    g.add_argument("--links", default="pc", metavar="L[,L...]",
+                   help="links to replay (default: pc, the PC's commands)")
+    g.add_argument("--speed", type=float, default=1.0, metavar="N",
+                   help="replay N times faster than recorded (default 1; bytes keep their wire time)")
+    g.add_argument("--compare", action="store_true",
+                   help="replay into a fresh virtual fleet of the recorded scenario and compare the "
+                        "frames of the other links with the recording (implies --to-bus)")
+    g.add_argument("--scenario", metavar="NAME|FILE",
+                   help="with --compare: the scenario to rebuild (default: the recording's)")
     p.set_defaults(func=cmd_replay)
 
 
@@ -131,14 +149,70 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
+    if args.compare or args.to_bus:
+        return cmd_bus_replay(args)
     from .replay import replay
 
     if args.rrd is None and not args.spawn:
-        raise UsageError("say where the replay goes: --rrd out.rrd and/or --spawn")
+        raise UsageError("say where the replay goes: --rrd out.rrd and/or --spawn, or --to-bus")
     try:
         st = replay(args.file, rrd=args.rrd, spawn=args.spawn, anim_step_ns=int(args.anim_ms * 1e6))
     except FileNotFoundError as exc:
         raise UsageError(str(exc)) from None
     print(f"{st.samples} samples, {st.frames} frames, {st.sim_ns / 1e9:.3f} sim s in {st.wall_s:.2f} s "
           f"({st.speed:.0f}x real time)" + (f" -> {args.rrd}" if args.rrd else ""), file=sys.stderr)
+    return 0
+
+
+def cmd_bus_replay(args: argparse.Namespace) -> int:
+    """``--to-bus`` (wall clock, onto whatever fleet listens) or ``--compare`` (virtual)."""
+    from .bus_replay import parse_links
+    from .reader import parts_of
+
+    try:
+        links = parse_links(args.links)
+        parts_of(args.file)
+    except (ValueError, FileNotFoundError) as exc:
+        raise UsageError(str(exc)) from None
+    if args.speed <= 0:
+        raise UsageError(f"--speed must be positive, got {args.speed}")
+    if args.compare:
+        from .compare import CompareError, compare
+
+        if args.speed != 1.0:
+            raise UsageError("--compare replays at the recorded sim times on a virtual clock: "
+                             "--speed does not apply")
+        try:
+            result = compare(args.file, links=links, scenario=args.scenario)
+        except CompareError as exc:
+            raise UsageError(str(exc)) from None
+        print(result.report())
+        return 0 if result.ok else 1
+    if args.scenario:
+        raise UsageError("--scenario only goes with --compare")
+
+    from bus.clock import WallClock
+    from bus.keys import check_chunk
+    from bus.session import SessionOptions
+    from bus.transport import Bus
+
+    from .bus_replay import BusReplay
+
+    try:
+        check_chunk(args.fleet, "fleet")
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    clock = WallClock()
+    bus = Bus(clock, args.fleet, options=SessionOptions.from_args(args))
+    try:
+        replay = BusReplay.from_recording(bus, args.file, links=links, speed=args.speed)
+        t0 = time.monotonic()
+        replay.schedule(start_ns=clock.now_ns() + 500_000_000)  # a lead-in for peers to connect
+        clock.run(until=lambda: replay.done)
+    except KeyboardInterrupt:
+        return 130
+    finally:
+        bus.close()
+    print(f"replayed {replay.sent} frame(s) on {', '.join(links)} to {bus.keys.root} "
+          f"in {time.monotonic() - t0:.2f} s (speed {args.speed:g})", file=sys.stderr)
     return 0

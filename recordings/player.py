@@ -1,8 +1,8 @@
 """Playing a recording back in time order (the role of python-can's ``can.player``).
 
 :class:`Player` yields samples in log-time order across rotated parts; the rerun replay
-consumes it, and a bus replay (``--to-bus``, later) will schedule its samples on a clock
-with their original spacing and republish them under the same keys.
+consumes it. The bus replay (:mod:`recordings.bus_replay`) schedules recorded frames on a
+clock with their original timing instead.
 """
 
 from __future__ import annotations

@@ -10,13 +10,17 @@ from __future__ import annotations
 
 import json
 import struct
+import zlib
+from io import BytesIO
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Iterator
 
 from mcap.exceptions import McapError
-from mcap.records import Channel, Chunk, Message, Metadata
-from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.data_stream import ReadDataStream
+from mcap.opcode import Opcode
+from mcap.records import Channel, Chunk, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader
 
 from bus.envelope import Envelope
 
@@ -30,6 +34,9 @@ _TRUNCATION_ERRORS: tuple[type[BaseException], ...] = (McapError, struct.error, 
                                                        EOFError, RuntimeError, MemoryError)
 
 
+_decode_json = json.JSONDecoder().decode  # payloads are UTF-8: skip json.loads' encoding sniffing
+
+
 @dataclass(frozen=True)
 class Sample:
     """One recorded message."""
@@ -41,7 +48,8 @@ class Sample:
     sequence: int = 0
 
     def json(self) -> Any:
-        return json.loads(self.data)
+        """The decoded payload (``ValueError`` if it is not UTF-8 JSON)."""
+        return _decode_json(self.data.decode("utf-8"))
 
     def decode(self) -> Any:
         """The typed value: an Envelope, a bus.messages record, or a dict for other topics."""
@@ -102,19 +110,25 @@ class RecordingFile:
                     self.truncated = True
                     self.error = f"{type(exc).__name__}: {exc}".rstrip(": ")
                     return
+                channels = self.channels
                 for rec in inner:
-                    if isinstance(rec, Message):
-                        ch = self.channels.get(rec.channel_id)
+                    if type(rec) is tuple:  # a message: (channel id, sequence, log, publish, data)
+                        ch = channels.get(rec[0])
                         if ch is None:
                             continue  # a message before its channel: not written by us
                         if wanted is None or ch.topic in wanted:
+                            yield Sample(ch.topic, rec[2], rec[3], rec[4], rec[1])
+                    elif isinstance(rec, Message):
+                        ch = channels.get(rec.channel_id)
+                        if ch is not None and (wanted is None or ch.topic in wanted):
                             yield Sample(ch.topic, rec.log_time, rec.publish_time, rec.data, rec.sequence)
 
     def _unpack(self, record: Any) -> list[Any]:
-        """Records of a top-level record (a chunk's contents, CRC-checked), tracking state."""
+        """Records of a top-level record (a chunk's contents, CRC-checked), tracking state.
+        Messages inside chunks come back as plain tuples (see :func:`chunk_records`)."""
         if isinstance(record, Chunk):
             self.compression.add(record.compression or "none")
-            inner = breakup_chunk(record, validate_crc=True)
+            inner = chunk_records(record)
         else:
             inner = [record]
         for rec in inner:
@@ -123,6 +137,48 @@ class RecordingFile:
             elif isinstance(rec, Metadata):
                 self.metadata.append((rec.name, dict(rec.metadata)))
         return inner
+
+
+_RECORD_HEAD = struct.Struct("<BQ")
+_MESSAGE_HEAD = struct.Struct("<HIQQ")
+
+
+def chunk_records(chunk: Chunk) -> list[Any]:
+    """The records of a chunk, CRC-checked: messages as ``(channel id, sequence, log time,
+    publish time, data)`` tuples (mcap's ``breakup_chunk`` builds a record object through a
+    stream per field: several times slower), schemas and channels as mcap records."""
+    data = _decompress(chunk)
+    if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
+        raise ValueError(f"chunk CRC mismatch at log time {chunk.message_start_time}")
+    out: list[Any] = []
+    append = out.append
+    i, n = 0, len(data)
+    head, message = _RECORD_HEAD.unpack_from, _MESSAGE_HEAD.unpack_from
+    while i < n:
+        opcode, length = head(data, i)
+        i += 9
+        end = i + length
+        if end > n:
+            raise ValueError("a record runs past the end of its chunk")
+        if opcode == Opcode.MESSAGE:
+            append((*message(data, i), data[i + 22:end]))
+        elif opcode in (Opcode.CHANNEL, Opcode.SCHEMA):
+            stream = ReadDataStream(BytesIO(data[i:end]))
+            append(Channel.read(stream) if opcode == Opcode.CHANNEL else Schema.read(stream))
+        i = end
+    return out
+
+
+def _decompress(chunk: Chunk) -> bytes:
+    if chunk.compression == "zstd":
+        import zstandard
+        return zstandard.ZstdDecompressor().decompress(chunk.data, max_output_size=chunk.uncompressed_size)
+    if chunk.compression == "lz4":
+        import lz4.frame
+        return lz4.frame.decompress(chunk.data)
+    if chunk.compression:
+        raise ValueError(f"unknown chunk compression {chunk.compression!r}")
+    return bytes(chunk.data)
 
 
 # --- convenience iterators -------------------------------------------------------------------

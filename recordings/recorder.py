@@ -11,13 +11,18 @@ is visible"; rosbag2/MCAP as the model).
 * Optional rotation by size or duration into ``<stem>_0001.mcap``, ``<stem>_0002.mcap``...
 * Errors are data: a sample that is not JSON, or lacks its schema's required fields, is written
   as a ``_recorder/error`` record carrying the key and the raw bytes, never dropped.
+* Fast: payloads are written exactly as they came from the bus (never re-serialised), frames
+  and schemaless keys without being decoded (see :class:`_Route`), into large chunks by
+  :class:`recordings.mcap_writer.FastMcapWriter`; ``strict=True`` decodes every payload.
 """
 
 from __future__ import annotations
 
 import json
+import re
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal, Mapping
 
@@ -25,13 +30,15 @@ from bus.keys import Keys
 from bus.messages import RunMeta
 
 from . import meta as meta_mod
-from .schemas import RECORDER_ERROR_TOPIC, kind_of
-from .sink import McapSink
-from .stats import Tally
+from .schemas import FRAME, RECORDER_ERROR_TOPIC, UNTYPED, kind_of
+from .sink import CHUNK_SIZE, McapSink
+from .stats import Tally, kind_field
 
 TimeSource = Literal["auto", "sim", "wall"]
-_CHECK_SIZE_EVERY = 64
-_decode = json.JSONDecoder().decode  # skips json.loads' encoding sniffing (payloads are UTF-8)  # messages between file-size checks (tell() is a syscall)
+_CHECK_SIZE_EVERY = 64  # messages between file-size checks (tell() is a syscall)
+_decode = json.JSONDecoder().decode  # skips json.loads' encoding sniffing (payloads are UTF-8)
+_INT = re.compile(rb"\s*(-?\d+)\s*[,}]")
+_STRING = re.compile(rb'\s*"([^"\\]*)"')
 
 
 def part_path(out: Path, index: int) -> Path:
@@ -44,14 +51,73 @@ def _required(topic: str) -> tuple[str, ...]:
     return tuple(schema.get("required", ())) if schema else ()
 
 
+@dataclass(frozen=True)
+class _Route:
+    """How samples of one key are recorded.
+
+    ``fast`` routes (frames and schemaless keys such as ``ir/*``: the bulk of a run) are not
+    decoded: a payload that is a JSON object carrying every required field name is written
+    as it is, with its sim time, publish time and kind read straight from the bytes. Anything
+    else — no braces, a required field missing, a time that is not an integer — takes the
+    careful path, which decodes it and records what is wrong as a ``_recorder/error``.
+    (A payload that looks like an object but is not valid JSON is still kept byte for byte on
+    its channel; :func:`recordings.reader.summary` counts it as undecodable.) Records
+    (world, planner, meta, events) are rare and always decoded.
+    """
+
+    topic: str
+    fast: bool
+    required: tuple[bytes, ...]  # b'"name":' of every required field
+    kind: bytes | None  # b'"kind":' if the tally counts this topic by a field
+
+    @classmethod
+    def of(cls, topic: str) -> "_Route":
+        kind = kind_of(topic)
+        fast = kind is FRAME or (kind is UNTYPED and topic != RECORDER_ERROR_TOPIC)
+        field_name = kind_field(topic)
+        return cls(topic, fast, tuple(f'"{k}":'.encode() for k in _required(topic)),
+                   None if field_name is None else f'"{field_name}":'.encode())
+
+    def scan(self, payload: bytes) -> tuple[int | None, int | None, str | None] | None:
+        """``(sim_time_ns, wall_time_ns, kind)`` read from the bytes, or None: decode it."""
+        if payload[:1] != b"{" or payload[-1:] != b"}":
+            return None
+        for name in self.required:
+            if name not in payload:
+                return None
+        sim = _int_field(payload, b'"sim_time_ns":')
+        if sim is False or (sim is not None and sim < 0):
+            return None
+        pub = _int_field(payload, b'"wall_time_ns":')
+        if pub is False:
+            return None
+        kind = None
+        if self.kind is not None:
+            i = payload.find(self.kind)
+            if i >= 0:
+                m = _STRING.match(payload, i + len(self.kind))
+                kind = m.group(1).decode("utf-8", "replace") if m else "?"
+        return sim, pub, kind
+
+
+def _int_field(payload: bytes, name: bytes) -> int | None | bool:
+    """The integer after the first ``name``; None if absent; False if not an integer."""
+    i = payload.find(name)
+    if i < 0:
+        return None
+    m = _INT.match(payload, i + len(name))
+    return int(m.group(1)) if m else False
+
+
 class Recorder:
     """Writes bus samples to MCAP. Thread-safe: samples may come from any thread."""
 
     def __init__(self, out: str | Path, *, fleet: str = "default",
                  meta: Mapping[str, Any] | RunMeta | None = None, time_source: TimeSource = "auto",
-                 compression: str = "zstd", chunk_size: int = 512 * 1024,
+                 compression: str = "zstd", chunk_size: int = CHUNK_SIZE,
                  flush_interval_s: float = 0.5, rotate_bytes: int | None = None,
-                 rotate_s: float | None = None, argv: list[str] | None = None) -> None:
+                 rotate_s: float | None = None, argv: list[str] | None = None,
+                 strict: bool = False) -> None:
         self.out = Path(out)
         self.keys = Keys(fleet)
         self.time_source: TimeSource = time_source
@@ -65,7 +131,9 @@ class Recorder:
             self.meta["log_time"] = time_source  # how to read log times (the replay needs it)
         self._done = Tally()  # counts of the closed parts
         self._part = Tally()  # counts of the open part (written into it when it closes)
-        self._topics: dict[str, str] = {}  # key -> topic (cache)
+        self.strict = strict
+        self._routes: dict[str, _Route] = {}  # key -> how its samples are recorded
+        self._cids: dict[str, int] = {}  # topic -> channel id in the open part
         self.paths: list[Path] = []
         self._required: dict[str, tuple[str, ...]] = {}
         self._last_sim_ns = 0
@@ -100,11 +168,36 @@ class Recorder:
 
     # -- writing ----------------------------------------------------------------------------
     def write(self, key: str, payload: bytes, *, receive_wall_ns: int | None = None) -> None:
-        """Record one sample of ``key`` (full key or relative topic)."""
+        """Record one sample of ``key`` (full key or relative topic), its bytes as they are."""
         wall = time.time_ns() if receive_wall_ns is None else receive_wall_ns
-        topic = self._topics.get(key)
-        if topic is None:
-            topic = self._topics[key] = self.keys.relative(key)
+        route = self._routes.get(key)
+        if route is None:
+            route = self._routes[key] = _Route.of(self.keys.relative(key))
+        fields = route.scan(payload) if route.fast and not self.strict else None
+        if fields is None:
+            self._write_checked(route.topic, key, payload, wall)
+            return
+        sim, pub, kind = fields
+        with self._lock:
+            if sim is None:
+                sim = self._last_sim_ns
+            elif sim > self._last_sim_ns:
+                self._last_sim_ns = sim
+            log_time = wall if self.time_source == "wall" else sim
+            if self._closed:
+                return
+            if self.rotating:
+                self._maybe_rotate(log_time)
+            if self._part_first_ns is None:
+                self._part_first_ns = log_time
+            cid = self._cids.get(route.topic)
+            if cid is None:
+                cid = self._cids[route.topic] = self._sink.channel(route.topic)
+            self._sink.write_to(cid, payload, log_time, wall if pub is None else pub)
+            self._part.add_kind(route.topic, kind, log_time)
+
+    def _write_checked(self, topic: str, key: str, payload: bytes, wall: int) -> None:
+        """The careful path: decode the whole payload, check its schema's required fields."""
         try:
             obj = _decode(payload.decode("utf-8"))
         except ValueError as exc:  # UnicodeDecodeError is a ValueError
@@ -127,7 +220,7 @@ class Recorder:
                 self._last_sim_ns = sim
             log_time = wall if self.time_source == "wall" else (self._last_sim_ns if sim is None else sim)
             self._write_locked(topic, payload, obj, log_time, pub if isinstance(pub, int) else wall)
-            if topic == "meta" and isinstance(obj, dict):
+            if topic == "meta" and isinstance(obj, dict) and not self._closed:
                 self.meta = meta_mod.merge(self.meta, RunMeta.from_dict(obj))
                 self._sink.add_metadata(self.meta)
 
@@ -146,7 +239,10 @@ class Recorder:
         self._maybe_rotate(log_time)
         if self._part_first_ns is None:
             self._part_first_ns = log_time
-        self._sink.write(topic, data, log_time, publish_time)
+        cid = self._cids.get(topic)
+        if cid is None:
+            cid = self._cids[topic] = self._sink.channel(topic)
+        self._sink.write_to(cid, data, log_time, publish_time)
         self._part.add(topic, obj, log_time)
 
     # -- parts and rotation --------------------------------------------------------------------
@@ -168,6 +264,7 @@ class Recorder:
         sink.flush()  # the header and metadata reach the disk at once
         self.paths.append(path)
         self._part_first_ns = None
+        self._cids = {}  # channel ids are per file
         return sink
 
     def _maybe_rotate(self, log_time: int | None) -> None:

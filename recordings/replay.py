@@ -12,6 +12,7 @@ from __future__ import annotations
 import uuid
 from collections import Counter, defaultdict
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 from typing import Any, Iterable
 
@@ -42,6 +43,8 @@ IR_LIT = (255, 255, 150)
 PALETTE = [(120, 200, 255), (160, 230, 140), (250, 180, 120), (210, 160, 250), (250, 230, 120),
            (130, 230, 220), (250, 150, 190), (190, 190, 190)]
 ELECTRON, VOID, POTENTIAL_VOID, PAIR, GOAL = (255, 220, 0), (20, 20, 20), (255, 140, 0), (255, 255, 255), (60, 220, 90)
+_IR_COLOURS = [[IR_LIT] * n for n in range(8)]
+_FRAME_ENTITY = {link.value: f"frames/{link.value}" for link in Link}
 #: Stops of the value-function colour map (dark blue -> teal -> yellow), by value 0..1.
 HEAT_STOPS = np.array([[40, 30, 110], [30, 120, 160], [60, 190, 120], [240, 230, 60]], dtype=float)
 
@@ -96,6 +99,22 @@ class Columns:
         self.times.append(t_ns)
         self.lengths.append(n or 0)
 
+    def add_row(self, t_ns: int, n: int, **values: list[Any]) -> None:
+        """A row whose fields the caller guarantees to hold ``n`` instances each (hot paths)."""
+        fields = self.fields
+        for name, v in values.items():
+            fields[name].extend(v)
+        self.times.append(t_ns)
+        self.lengths.append(n)
+
+    def add_one(self, t_ns: int, **values: Any) -> None:
+        """A row of exactly one instance per field (text lines, scalars): no checks needed."""
+        fields = self.fields
+        for name, v in values.items():
+            fields[name].append(v)
+        self.times.append(t_ns)
+        self.lengths.append(1)
+
     def send(self, entity: str, rec: rr.RecordingStream) -> None:
         if not self.times:
             return
@@ -120,18 +139,30 @@ class Scene:
     def __init__(self) -> None:
         self._cols: dict[tuple[str, Any], Columns] = {}
 
-    def add(self, entity: str, archetype: Any, t_ns: int, **values: Any) -> None:
+    def columns(self, entity: str, archetype: Any) -> Columns:
+        """The columns of one entity and archetype (created on first use)."""
         key = (entity, archetype)
         cols = self._cols.get(key)
         if cols is None:
             cols = self._cols[key] = Columns(archetype)
-        cols.add(t_ns, **values)
+        return cols
+
+    def add(self, entity: str, archetype: Any, t_ns: int, **values: Any) -> None:
+        self.columns(entity, archetype).add(t_ns, **values)
 
     def text(self, entity: str, t_ns: int, text: str, level: str = "INFO") -> None:
-        self.add(entity, rr.TextLog, t_ns, text=[text], level=[level])
+        key = (entity, rr.TextLog)
+        cols = self._cols.get(key)
+        if cols is None:
+            cols = self._cols[key] = Columns(rr.TextLog)
+        cols.add_one(t_ns, text=text, level=level)
 
     def scalar(self, entity: str, t_ns: int, value: float) -> None:
-        self.add(entity, rr.Scalars, t_ns, scalars=[value])
+        key = (entity, rr.Scalars)
+        cols = self._cols.get(key)
+        if cols is None:
+            cols = self._cols[key] = Columns(rr.Scalars)
+        cols.add_one(t_ns, scalars=value)
 
     def send(self, rec: rr.RecordingStream) -> None:
         for (entity, _), cols in self._cols.items():
@@ -161,6 +192,18 @@ def _describe(env: Envelope) -> str:
         return f"{env.kind or '?'} {env.raw.hex()}"
 
 
+def _frame_line(env: Envelope, cache: dict[tuple[str, str, str, str, bytes], str]) -> str:
+    """The text-log line of a frame. A run repeats the same frames between the same
+    endpoints over and over (probes, MSG1, ACKs), so lines are made once per distinct
+    (link, src, dst, kind, bytes): the view is a function of the bytes."""
+    key = (env.link, env.src, env.dst, env.kind, env.raw)
+    line = cache.get(key)
+    if line is None:
+        line = cache[key] = f"{env.src} → {env.dst}  {_describe(env)}  [{env.raw.hex()}]"
+    return line
+
+
+@lru_cache(maxsize=4096)
 def _module_of(endpoint: str) -> str | None:
     """``m3.comm`` -> ``m3``; None for the PC or a bridge."""
     head = endpoint.split(".", 1)[0]
@@ -179,6 +222,8 @@ class ReplayBuilder:
         self.cells_seen: set[tuple[int, int]] = set()
         self.end_ns = 0
         self.frames = 0
+        self._lines: dict[tuple[str, str, str, str, bytes], str] = {}
+        self._ir_strips: dict[tuple[Placement, tuple[int, ...]], list[np.ndarray]] = {}
 
     def track(self, module: str) -> ModuleTrack:
         t = self.tracks.get(module)
@@ -221,7 +266,7 @@ class ReplayBuilder:
         self.frames += 1
         self.fps[env.link][t // self.fps_bin_ns] += 1
         level = "WARN" if env.kind == Kind.NOISE.value else "INFO"
-        self.scene.text(f"frames/{env.link}", t, f"{env.src} → {env.dst}  {_describe(env)}  [{env.raw.hex()}]", level)
+        self.scene.text(_FRAME_ENTITY.get(env.link) or f"frames/{env.link}", t, _frame_line(env, self._lines), level)
         module = _module_of(env.src)
         if module is not None and env.channel is not None and env.link in (Link.SIDE.value, Link.CENTRE.value):
             start = t - max(0, env.sim_time_ns - env.first_byte_ns) if env.first_byte_ns is not None else t
@@ -272,8 +317,9 @@ class ReplayBuilder:
         placement: Placement | None = None
         act: Actuators | None = None
         move: Move | None = None
-        lit: Counter[int] = Counter()
+        lit = [0] * 7  # bursts in flight per transceiver (0 centre, 1..6 sides)
         base = f"world/modules/{tr.name}"
+        ir_rows = self.scene.columns(f"{base}/ir", rr.LineStrips2D)
         colour = PALETTE[(int(tr.name[1:]) - 1) % len(PALETTE)] if tr.name[1:].isdigit() else PALETTE[-1]
 
         def draw(t: int, p: Placement) -> None:
@@ -301,13 +347,24 @@ class ReplayBuilder:
                     pending = move.frame_times(self.anim_step_ns) + [move.end_ns]
                     draw(t, move.at(t))
             elif what in ("ir-on", "ir-off") and placement is not None:
-                lit[value] += 1 if what == "ir-on" else -1
+                if 0 <= value < 7:
+                    lit[value] += 1 if what == "ir-on" else -1
                 here = move.at(t) if move is not None else placement
-                segs = [view_xy(here.ir_segment(ch)) for ch, n in sorted(lit.items()) if n > 0]
-                self.scene.add(f"{base}/ir", rr.LineStrips2D, t, strips=segs, colors=[IR_LIT] * len(segs))
+                segs = self._ir(here, tuple(ch for ch in range(7) if lit[ch] > 0))
+                ir_rows.add_row(t, len(segs), strips=segs, colors=_IR_COLOURS[len(segs)])
         for ft in pending:  # a move still running when the recording ends
             if move is not None:
                 draw(ft, move.at(ft))
+
+    def _ir(self, here: Placement, channels: tuple[int, ...]) -> list[np.ndarray]:
+        """Lit IR segments of a placement (cached: a resting module lights the same ones often)."""
+        key = (here, channels)
+        segs = self._ir_strips.get(key)
+        if segs is None:
+            segs = [view_xy(here.ir_segment(ch)) for ch in channels]
+            if here.pivot is None:  # rotating placements are seen once
+                self._ir_strips[key] = segs
+        return segs
 
     def _draw_module(self, base: str, name: str, colour: tuple[int, int, int], t: int,
                      p: Placement, act: Actuators | None) -> None:

@@ -6,25 +6,26 @@ import json
 from pathlib import Path
 from typing import Any, Mapping
 
-from mcap.exceptions import UnsupportedCompressionError
-from mcap.writer import CompressionType, Writer
-
+from .mcap_writer import COMPRESSIONS, CompressionUnavailable, FastMcapWriter
 from .meta import METADATA_NAME, STATS_NAME, to_mcap
 from .schemas import ChannelKind, kind_of
 from .stats import Tally
 
-#: Preference order; mcap's writer needs the ``zstandard`` / ``lz4`` packages for the first two.
-_COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 LIBRARY = "hexbench-recorder"
+#: Default chunk size: large enough that zstd sees plenty of repetition and per-chunk costs
+#: (index records, compression calls) vanish; the flush interval bounds what a crash loses.
+CHUNK_SIZE = 1024 * 1024
 
 
-def open_writer(stream: Any, compression: str, chunk_size: int) -> tuple[Writer, str]:
-    """A writer with ``compression`` if its package is installed, else the next one that is."""
-    names = list(_COMPRESSIONS)
-    for name in names[names.index(compression):]:
+def open_writer(stream: Any, compression: str, chunk_size: int) -> tuple[FastMcapWriter, str]:
+    """A writer with ``compression`` if its package is installed, else the next one that is
+    (in the order zstd, lz4, none)."""
+    if compression not in COMPRESSIONS:
+        raise ValueError(f"unknown compression {compression!r}: expected one of {', '.join(COMPRESSIONS)}")
+    for name in COMPRESSIONS[COMPRESSIONS.index(compression):]:
         try:
-            return Writer(stream, chunk_size=chunk_size, compression=_COMPRESSIONS[name]), name
-        except UnsupportedCompressionError:
+            return FastMcapWriter(stream, chunk_size=chunk_size, compression=name), name
+        except CompressionUnavailable:
             continue
     raise AssertionError("uncompressed MCAP is always available")  # pragma: no cover
 
@@ -33,7 +34,7 @@ class McapSink:
     """Writes samples of one recording part; channels appear when their first sample does."""
 
     def __init__(self, path: Path, *, fleet: str, compression: str = "zstd",
-                 chunk_size: int = 512 * 1024) -> None:
+                 chunk_size: int = CHUNK_SIZE) -> None:
         self.path = path
         self.fleet = fleet
         self._file = open(path, "wb")
@@ -41,11 +42,12 @@ class McapSink:
         self._writer.start(profile="", library=LIBRARY)
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
-        self._seq: dict[int, int] = {}
+        self._seq: list[int] = [0]  # next sequence number, by channel id
         self.dirty = False
         self.closed = False
 
-    def _channel(self, topic: str) -> int:
+    def channel(self, topic: str) -> int:
+        """The id of ``topic``'s channel in this file (registered with its schema on first use)."""
         cid = self._channels.get(topic)
         if cid is None:
             kind: ChannelKind = kind_of(topic)
@@ -58,12 +60,16 @@ class McapSink:
             key = f"hexbot/{self.fleet}/{topic}" if not topic.startswith("_") else topic
             cid = self._channels[topic] = self._writer.register_channel(
                 topic, "json", sid, {"key": key, "fleet": self.fleet})
+            self._seq.append(0)
         return cid
 
     def write(self, topic: str, data: bytes, log_time_ns: int, publish_time_ns: int) -> None:
-        """Append one message."""
-        cid = self._channel(topic)
-        seq = self._seq.get(cid, 0)
+        """Append one message (``data`` exactly as it came from the bus)."""
+        self.write_to(self.channel(topic), data, log_time_ns, publish_time_ns)
+
+    def write_to(self, cid: int, data: bytes, log_time_ns: int, publish_time_ns: int) -> None:
+        """Append one message to a channel from :meth:`channel` (the recorder's hot path)."""
+        seq = self._seq[cid]
         self._seq[cid] = seq + 1
         self._writer.add_message(cid, log_time_ns, data, publish_time_ns, seq)
         self.dirty = True

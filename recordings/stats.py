@@ -33,6 +33,12 @@ def _classify(topic: str) -> tuple[str | None, str | None]:
     return None, None
 
 
+def kind_field(topic: str) -> str | None:
+    """The field of a sample of ``topic`` that the tally counts by (None: counted per topic only)."""
+    what = _classify(topic)[0]
+    return None if what is None else _FIELD[what]
+
+
 @dataclass
 class Tally:
     """Counts per topic, per link (frames and noise), errors and faults, and the time span."""
@@ -48,6 +54,15 @@ class Tally:
 
     def add(self, topic: str, obj: Any, log_time_ns: int) -> None:
         """Count one sample; ``obj`` is its decoded JSON (None if it was not JSON)."""
+        what = _classify(topic)[0]
+        kind = None
+        if what is not None and isinstance(obj, dict):
+            kind = obj.get(_FIELD[what], "?")
+        self.add_kind(topic, kind, log_time_ns, has_fields=isinstance(obj, dict))
+
+    def add_kind(self, topic: str, kind: Any, log_time_ns: int, *, has_fields: bool = True) -> None:
+        """Count one sample whose kind field (``kind_field(topic)``) is already known
+        (the recorder's fast path finds it without decoding the whole payload)."""
         self.messages += 1
         self.by_topic[topic] += 1
         if self.first_ns is None or log_time_ns < self.first_ns:
@@ -57,7 +72,8 @@ class Tally:
         what, link = _classify(topic)
         if what is None:
             return
-        kind = obj.get(_FIELD[what], "?") if isinstance(obj, dict) else "?"
+        if kind is None:
+            kind = "?"
         if what == "frame":
             self.frames_by_link[link] += 1
             if kind == "noise":
@@ -66,7 +82,7 @@ class Tally:
             self.errors_by_kind[str(kind)] += 1
         elif what == "recorder":
             self.errors_by_kind["recorder:" + str(kind)] += 1
-        elif isinstance(obj, dict):
+        elif has_fields:
             self.world_events_by_kind[str(kind)] += 1
 
     def merge(self, other: "Tally") -> None:

@@ -3,8 +3,9 @@ on the machine and its load), not asserted.
 
 Recording and replay throughput (run alone: ``pytest -s tests/benchmarks/test_recording_bench.py``).
 
-* writer-only: frames/s through ``Recorder.write`` (JSON check, schema check, MCAP, zstd), count-verified
-  by reading the file back;
+* writer-only: frames/s through ``Recorder.write`` (fast path: required fields and times read from
+  the bytes, payload written as it came; MCAP chunks, zstd), count-verified by reading the file
+  back; and the same with ``strict=True`` (every payload JSON-decoded), for comparison;
 * end-to-end: frames/s published on one zenoh session and recorded by a Recorder on another
   (reliable, blocking congestion control, so a loss would be a bug), count-verified;
 * replay: sim seconds turned into an .rrd per wall second.
@@ -50,22 +51,33 @@ def _report(name: str, value: float, unit: str, target: float | None = None) -> 
     print(f"\n[bench] {name}: {value:,.0f} {unit}{extra}")
 
 
-def test_writer_only_rate(tmp_path):
-    n = 300_000
-    payloads = _payloads(n)
-    rec = Recorder(tmp_path / "w.mcap", fleet="bench", time_source="sim")
+def _write_all(path, payloads, **kwargs) -> float:
+    """Frames/s writing ``payloads``; asserts nothing was lost (counted, then read back)."""
+    rec = Recorder(path, fleet="bench", time_source="sim", **kwargs)
     t0 = time.perf_counter()
     for key, data in payloads:
         rec.write(key, data)
     tally = rec.close()
     dt = time.perf_counter() - t0
-    assert tally.frames == n
-    assert summary(tmp_path / "w.mcap").tally.frames == n  # nothing lost on the way to disk
-    rate = n / dt
+    assert tally.frames == len(payloads)
+    assert summary(path).tally.frames == len(payloads)  # nothing lost on the way to disk
+    return len(payloads) / dt
+
+
+def test_writer_only_rate(tmp_path):
+    n = 300_000
+    payloads = _payloads(n)
+    rate = _write_all(tmp_path / "w.mcap", payloads)
     size = (tmp_path / "w.mcap").stat().st_size
     _report("writer-only", rate, "frames/s", WRITER_TARGET)
     print(f"[bench] file: {size / 1e6:.1f} MB for {n} frames ({size / n:.0f} B/frame, zstd)")
     print(f"[bench] writer-only {'meets' if rate >= WRITER_TARGET else 'MISSES'} the target")
+    for compression in ("lz4", "none"):
+        r = _write_all(tmp_path / f"w-{compression}.mcap", payloads[:100_000], compression=compression)
+        size = (tmp_path / f"w-{compression}.mcap").stat().st_size
+        print(f"[bench] writer-only, {compression}: {r:,.0f} frames/s, {size / 100_000:.0f} B/frame")
+    strict = _write_all(tmp_path / "w-strict.mcap", payloads[:100_000], strict=True)
+    print(f"[bench] writer-only, strict (every payload JSON-decoded): {strict:,.0f} frames/s")
 
 
 def test_end_to_end_rate_over_zenoh(tmp_path):
@@ -122,3 +134,26 @@ def test_replay_speed(tmp_path):
     print(f"[bench] {st.sim_ns / 1e9:.1f} sim s, {st.frames} frames ({frames_per_sim_s:,.0f}/sim s), "
           f"{st.rows} rows in {st.wall_s:.2f} s")
     print(f"[bench] replay {'meets' if st.speed >= REPLAY_TARGET else 'MISSES'} the target")
+
+
+def test_replay_and_compare_of_a_fleet_run(tmp_path, capsys):
+    """A real virtual run (``hexbench run thesis-6``: bring-up, 8 moves) replayed to .rrd, and
+    replayed onto a fresh fleet with ``--compare`` (sim seconds per wall second)."""
+    from bus.cli import main
+    from recordings.compare import compare
+
+    path = tmp_path / "t6.mcap"
+    if main(["run", "thesis-6", "--clock", "virtual", "--record", str(path)]) != 0 or not path.exists():
+        print("\n[bench] hexbench run thesis-6 failed: no fleet-run figures")
+        return
+    capsys.readouterr()
+    st = replay(path, rrd=tmp_path / "t6.rrd")
+    t0 = time.perf_counter()
+    result = compare(path)
+    dt = time.perf_counter() - t0
+    assert result.ok, result.report()
+    with capsys.disabled():
+        _report("replay to .rrd of hexbench run thesis-6", st.speed, "x real time", REPLAY_TARGET)
+        print(f"[bench] {st.sim_ns / 1e9:.1f} sim s, {st.frames} frames, {st.samples} samples in {st.wall_s:.2f} s")
+        print(f"[bench] replay --compare: {result.end_ns / 1e9 / dt:,.0f} x real time "
+              f"({result.replayed} pc frames replayed, {result.expected} frames compared in {dt:.2f} s)")

@@ -51,3 +51,38 @@ def rerun_bin() -> str:
 def record():
     """``record(path, **run_kwargs) -> Recorded`` for tests that need their own run."""
     return record_synthetic
+
+
+# --- recordings of a virtual fleet (module_sim) driven by the PC endpoint -----------------------
+#: The PC's script for the ``pair`` scenario: address module 2, then three control codes.
+PAIR_COMMANDS = (("Select", 1, 2), ("SxP", 3), ("JxOpen", 2), ("SxOff", 3))
+BOOTED_NS = 9_000_000_000  # both modules have said COMM. LISTENING (at ~8.1 s)
+
+
+def record_pair(path: Path, *, scenario: str = "pair", seed: int | None = None) -> Path:
+    """Record the ``pair`` scenario booting and acknowledging :data:`PAIR_COMMANDS`."""
+    from bus.scenario import load
+    from recordings.virtual_run import VirtualRun, resolve_scenario
+
+    sc = load(scenario) if seed is None else resolve_scenario(scenario, seed=seed)
+    with VirtualRun(sc, record=path, argv=["test", "pair"]) as run:
+        run.clock.run(until_ns=BOOTED_NS, timeout_s=60)
+        for command in PAIR_COMMANDS:
+            run.pc.ack(*command)
+    return path
+
+
+@pytest.fixture(scope="session")
+def pair_recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return record_pair(tmp_path_factory.mktemp("pair") / "pair.mcap")
+
+
+@pytest.fixture(scope="session")
+def pair_commands() -> tuple:
+    return PAIR_COMMANDS
+
+
+@pytest.fixture(scope="session")
+def record_pair_run():
+    """``record_pair_run(path, seed=None) -> path``: a fresh recording of the pair script."""
+    return record_pair
