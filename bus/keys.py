@@ -13,6 +13,7 @@ key                                        payload (JSON, docs/bus.md)
 ``world/switches/<module>``                a module's optical switches (body frame)
 ``world/inject``                           inject an actuator fault (:mod:`bus.faults`)
 ``world/sync``                             ask the world to republish poses and switches
+``world/confirm``                          a real module's confirmed pose (from the planner)
 ``planner/<topic>``                        planner decisions and progress
 ``event/<src>``                            errors as data: overrun, collision, timeout
 ``clock``                                  virtual time announcements

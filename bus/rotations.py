@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from typing import Callable, Iterator, NamedTuple
 
-from .lattice import Joint, MoveRule
+from .lattice import Direction, Joint, MoveRule
 
 Step = tuple  # ("open", k) | ("wait", "t1") | ("close_all",) ...
 
@@ -89,3 +89,10 @@ def rotation_arguments(rule: MoveRule, mobile_orientation: int,
     j = int(rule.joint)
     return RotationArgs(int(Joint.of(j - mobile_orientation)),
                         int(Joint.of(j - substrate_orientation)))
+
+
+def orientation_after(orientation: int, direction: Direction | str) -> int:
+    """Orientation after a move. Sides are numbered clockwise, so turning the body
+    120 degrees clockwise carries body side s from global side g to g + 2."""
+    step = 2 if Direction(direction) is Direction.CW else -2
+    return (orientation + step) % 6

@@ -11,9 +11,10 @@ import math
 from typing import Callable
 
 from bus import codec, rotations
+from bus.rotations import orientation_after
 from bus.clock import Clock
 from bus.functions import ACK_UNKNOWN, FUNCTIONS, Board, FunctionCode as F
-from bus.lattice import Cell, Side, body_to_global
+from bus.lattice import Cell, Direction, Joint, Side, body_to_global, move_rule
 from bus.pins import IR_SEL_MASK, LED_JOINT, LED_NEG, LED_POS, Pin, fold, ir_select_bits, ir_selected
 from bus.timing import (ECHO_TIMEOUT_TICKS, HANDSHAKE_RETRY_TICKS, LOCALIZE_LISTEN_TICKS,
                         SUBSTRATE_ACK_DELAY_TICKS, TICK_NS, Baud, byte_time_ns,
@@ -474,11 +475,23 @@ class CommBoard(Mcu):
     def _move(self, direction, mid, mi, sid, si, t1, t2, t3) -> Program:
         cw = direction == 1
         if self.id == mid:
-            return (yield from self._rotate(F.MCW if cw else F.MCCW, 0, True, mi, t1, t2, t3))
+            ack = yield from self._rotate(F.MCW if cw else F.MCCW, 0, True, mi, t1, t2, t3)
+            if self.L and ack in (F.MCW, F.MCCW):
+                self._moved(mi, cw)
+            return ack
         if self.id == sid:
             self._substrate_turn = True
             return (yield from self._rotate(0, F.SCW if cw else F.SCCW, False, si, t1, t2, t3))
         return None
+
+    def _moved(self, mi: int, cw: bool) -> None:
+        """v2: a localized mobile module keeps its location through a ``Move`` it executed
+        (the Table 4-3 goal of the rotation about its body joint ``mi``), so a ``Report``
+        confirms the move. It cannot know whether the move happened: the PC compares."""
+        rule = move_rule(Joint.of(mi + self.Yref), Direction.CW if cw else Direction.CCW)
+        goal = rule.cells(Cell(self.X, self.Y))[2]
+        self.X, self.Y = goal.x, goal.y
+        self.Yref = orientation_after(self.Yref, rule.direction)
 
     def Report(self) -> Program:
         """v2: id, X, Y, Yref and flags on the centre channel (the ACK follows)."""

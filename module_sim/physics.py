@@ -34,7 +34,7 @@ from enum import Enum
 from typing import Any, Iterable, Sequence, Union
 
 from bus.lattice import Cell, Direction, Joint, MoveRule, Side, move_rule
-from bus.rotations import RotationArgs, rotation_arguments  # noqa: F401 (re-exported)
+from bus.rotations import RotationArgs, orientation_after, rotation_arguments  # noqa: F401 (re-exported)
 from bus.timing import NS_PER_S, TICK_NS
 
 # --- constants -----------------------------------------------------------------------
@@ -76,13 +76,6 @@ def rotation_degrees(direction: Direction | str) -> float:
     """Signed rotation angle of a move (positive = counter-clockwise, as in
     :func:`bus.lattice.rotate_about_vertex`). Table 4-3's CW is geometric clockwise."""
     return -120.0 if Direction(direction) is Direction.CW else 120.0
-
-
-def orientation_after(orientation: int, direction: Direction | str) -> int:
-    """Orientation after a move. Sides are numbered clockwise, so turning the body
-    120 degrees clockwise carries body side s from global side g to g + 2."""
-    step = 2 if Direction(direction) is Direction.CW else -2
-    return (orientation + step) % 6
 
 
 def substrate_cell(mobile: Cell, pivot: Joint | int, direction: Direction | str) -> Cell:
@@ -358,6 +351,19 @@ class MotionJudge:
             self._evaluate_all(out)
         self._now = t_ns
         return out
+
+    def relocate(self, module: str, cell: Cell, orientation: int) -> None:
+        """Put an externally driven body (a real module) where it was confirmed to be.
+        Raises ValueError when the cell is taken or the module is in flight."""
+        mod = self._mods[module]
+        occupant = self._occupant(cell)
+        if occupant is not None and occupant != module:
+            raise ValueError(f"{module} cannot be at {cell}: taken by {occupant}")
+        if module in self._flights:
+            raise ValueError(f"{module} is in flight")
+        del self._at[mod.cell]
+        mod.cell, mod.orientation = cell, orientation % 6
+        self._at[cell] = module
 
     # --- internals ----------------------------------------------------------------
     def _deadlines(self) -> list[tuple[int, int, str]]:

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from bus.ir import Burst, garble_message
 from bus.keys import PC, WORLD, module_endpoint
 from bus.lattice import Cell, Side, body_to_global, global_to_body
-from bus.messages import Pose
+from bus.messages import Pose, WorldEvent
 from bus.scenario import Scenario
 from bus.transport import Bus
 
@@ -59,6 +59,7 @@ class World:
         self.collisions = 0
         bus.subscribe(bus.keys.ir_tx_all, self._on_ir)
         bus.subscribe(f"{bus.keys.root}/world/sync", lambda k, p: self.start())
+        bus.subscribe(f"{bus.keys.root}/world/confirm", self._on_confirm)
         self.mechanics = Mechanics(bus, self.bodies, self.obstacles, self._moved,
                                    faults=list(scenario.faults))
 
@@ -68,6 +69,31 @@ class World:
         switches of everyone change."""
         b = self.bodies[move.module]
         b.cell, b.orientation = move.to_cell, move.orientation_after
+        self._publish_pose(b)
+        self.publish_switches()
+
+    def _on_confirm(self, key: str, payload: bytes) -> None:
+        """A real module's move, acknowledged and confirmed by its location report: the
+        world cannot see real actuators, so it takes the pose it is told (if it is free)."""
+        p = Pose.from_json(payload)
+        b = self.bodies.get(p.module)
+        if b is None or b.kind != "real":
+            self.bus.event(WORLD, "bad-confirm", module=p.module,
+                           detail="only real modules are confirmed from outside the world")
+            return
+        before = (b.cell, b.orientation)
+        try:
+            self.mechanics.judge.relocate(b.module, Cell(p.x, p.y), p.orientation)
+        except ValueError as exc:
+            self.bus.put(self.bus.keys.world_event, WorldEvent(
+                "fault", self.bus.clock.now_ns(), b.module, "confirm-refused",
+                {"detail": str(exc), "to": [p.x, p.y]}).to_json())
+            return
+        b.cell, b.orientation = Cell(p.x, p.y), p.orientation % 6
+        self.bus.put(self.bus.keys.world_event, WorldEvent(
+            "move-confirmed", self.bus.clock.now_ns(), b.module, "location report",
+            {"from": list(before[0]), "to": [p.x, p.y], "orientation_before": before[1],
+             "orientation_after": b.orientation, "kind": "real"}).to_json())
         self._publish_pose(b)
         self.publish_switches()
 

@@ -132,7 +132,9 @@ class BringUp:
             for i in pending:
                 reports[i] = self.report(i)
             pending = [i for i in pending if not reports[i]["localized"]]
-            if not pending:
+            # a real module cannot exchange side IR with virtual neighbours (docs/hil.md):
+            # it is only waited for while a real neighbour could still localize it
+            if not [i for i in pending if virtual_or_real[i] == "virtual"]:
                 break
             if self.localize_steps >= n:
                 raise BringUpError(f"localization: {', '.join(f'm{i}' for i in pending)} still not "
@@ -141,12 +143,22 @@ class BringUp:
             self.localize_step()
         self.say(f"bring-up: localized {n} modules in {self.localize_steps} Localize step(s)")
         view = Fleetview(source="location reports")
-        o_ref = ref.orientation
         for i, r in reports.items():
-            dx, dy = rotate_offset((r["x"], r["y"]), o_ref)
-            view.modules[i] = ModuleState(i, Cell(self.scenario.fixed.x + dx, self.scenario.fixed.y + dy),
-                                          (r["yref"] + o_ref) % 6, True, virtual_or_real[i])
+            if not r["localized"]:
+                spec = next(m for m in self.scenario.modules if m.id == i)
+                self.say(f"bring-up: m{i} ({spec.kind}) could not be localized: taking its pose "
+                         f"{spec.cell} orientation {spec.orientation} from the scenario")
+                view.modules[i] = ModuleState(i, spec.cell, spec.orientation, False, spec.kind)
+                continue
+            cell, orientation = self.to_global(r)
+            view.modules[i] = ModuleState(i, cell, orientation, True, virtual_or_real[i])
         return view
+
+    def to_global(self, report: dict) -> tuple[Cell, int]:
+        """A location report (reference frame) as a cell and orientation of the scenario."""
+        o_ref = self.scenario.fixed_module.orientation
+        dx, dy = rotate_offset((report["x"], report["y"]), o_ref)
+        return Cell(self.scenario.fixed.x + dx, self.scenario.fixed.y + dy), (report["yref"] + o_ref) % 6
 
     def localize_step(self) -> None:
         """One v2 ``Localize`` broadcast; returns when the step's slots have all passed."""

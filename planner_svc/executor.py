@@ -26,11 +26,11 @@ from typing import Callable
 from bus.functions import FunctionCode as F
 from bus.lattice import Cell, Direction, Joint, Side
 from bus.messages import Pose, WorldEvent
-from bus.rotations import rotation_arguments
+from bus.rotations import orientation_after, rotation_arguments
 from bus.timing import NS_PER_S
 from bus.transport import Bus
 
-from .bringup import BringUp, Fleetview
+from .bringup import BringUp, Fleetview, ModuleState
 from .endpoint import ExpectTimeout, PcEndpoint
 from .rules import Move
 
@@ -115,17 +115,38 @@ class Executor:
         self.pc.send(F.Move, d, mid, mi, sid, si, *self.timing)
         desc = (f"m{mid} {move.mobile}->{move.goal} ({rule.direction.value} about joint "
                 f"{int(rule.joint)}, substrate m{sid} at {move.substrate})")
+        real = mob.kind == "real"
         try:
-            self._wait_acks(mark, mid, sid, desc, move)
+            self._wait_acks(mark, mid, sid, desc, move, required=real or not self.truth.present)
         finally:
             for ident, body_joint in releases:
                 if ident != mid:
                     self.bringup.select(ident)
                     self.bringup.command(F.JxClose, body_joint, what=f"m{ident} JxClose({body_joint})")
         mob.cell = move.goal
-        mob.orientation = (mob.orientation + (2 if rule.direction is Direction.CW else -2)) % 6
-        self._verify(move, mid, desc, mark_ev)
+        mob.orientation = orientation_after(mob.orientation, rule.direction)
+        if real:
+            self._confirm_real(move, mob, desc)
+        else:
+            self._verify(move, mid, desc, mark_ev)
         self.moves_done += 1
+
+    def _confirm_real(self, move: Move, mob: ModuleState, desc: str) -> None:
+        """A real module: its location report (v2 keeps it through a Move) must name the
+        planned goal; then the world is told where the module is."""
+        if mob.localized:
+            r = self.bringup.report(mob.id)
+            cell, orientation = self.bringup.to_global(r)
+            if (cell, orientation) != (move.goal, mob.orientation):
+                raise MoveFailed(f"move {desc}: m{mob.id} reports {cell} orientation {orientation}, "
+                                 f"planned {move.goal} orientation {mob.orientation}", mob.id, move,
+                                 "location report")
+        else:
+            self.say(f"note: m{mob.id} is real and not localized: its move is confirmed by the "
+                     "ACKs alone")
+        self.pc.bus.put(self.pc.bus.keys.root + "/world/confirm", Pose(
+            f"m{mob.id}", mob.id, move.goal.x, move.goal.y, mob.orientation,
+            self.pc.bus.clock.now_ns(), "real").to_json())
 
     def _releases(self, move: Move, mid: int) -> list[tuple[int, int]]:
         """(module id, body joint) solenoids to open so the mobile can leave: for every
@@ -143,7 +164,8 @@ class Executor:
             out.append((mid, int(Joint.of(s + 1 - mob.orientation))))
         return out
 
-    def _wait_acks(self, mark: int, mid: int, sid: int, desc: str, move: Move) -> None:
+    def _wait_acks(self, mark: int, mid: int, sid: int, desc: str, move: Move, *,
+                   required: bool) -> None:
         got: list[int] = []
         try:
             first = self.pc.expect("ack", since=mark, timeout_s=5.0)
@@ -154,7 +176,7 @@ class Executor:
         except ExpectTimeout:
             noise = [r.frame.raw.hex() for r in self.pc.received[mark:] if r.frame.is_noise]
             cause = "ACK missing" + (f" (noise on the centre channel: {noise})" if noise else "")
-            if not self.truth.present:
+            if required:
                 raise MoveFailed(f"move {desc}: {cause}; got ACKs {got}", mid, move, cause) from None
             self.say(f"warning: move {desc}: {cause}; checking the world instead")
 

@@ -68,7 +68,8 @@ def test_wall_clock_replay_keeps_order_and_scales_time(pair_recording):
     assert {e.origin for e in got} == {"replay"}
     span_recorded = recorded[-1].first_byte_ns - recorded[0].first_byte_ns
     span_replayed = got[-1].first_byte_ns - got[0].first_byte_ns
-    assert span_replayed == pytest.approx(span_recorded / 50, abs=2_000_000)
+    # wall-clock scheduling: a loaded machine publishes late by a few ms (not a speed test)
+    assert span_replayed == pytest.approx(span_recorded / 50, rel=0.15)
 
 
 def test_compare_against_the_same_scenario_finds_no_divergence(pair_recording, pair_commands, capsys):
