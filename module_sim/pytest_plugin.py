@@ -3,14 +3,26 @@
 Options:
 
 * ``--hexbench-target virtual`` (default): a virtual module on a private bus, virtual clock.
-* ``--hexbench-target serial:<url>``: a real module behind a serial port (hardware-in-the-loop
-  issue; not available yet: tests that need it are skipped with that reason).
-* ``--hexbench-profile v2|thesis-2009|both`` (default both): the firmware profile(s).
+* ``--hexbench-target serial:<url>``: a module already powered up behind a serial port (any
+  pyserial URL: ``/dev/ttyUSB0``, ``socket://host:port``, a pty of ``hexbench standin``), reached
+  through a :class:`hil.bridge.CentreBridge` on a private bus with the wall clock. Give the
+  board's firmware with ``--hexbench-profile v2`` or ``thesis-2009``.
+* ``--hexbench-profile v2|thesis-2009|both`` (default both, virtual targets only).
+* ``--hexbench-baud N``: IR baud rate of the target (default 300).
 
-Fixtures: ``hexbench_bench`` (a powered single-module bench: ``.pc``, ``.clock``, ``.module``
-for virtual targets), ``pc`` (the bench's PC endpoint after the module finished booting).
+Fixtures: ``hexbench_bench`` (a single-module bench: ``.pc``, ``.clock``, ``.module`` for virtual
+targets), ``pc`` (the bench's PC endpoint, after the module finished booting).
 The conformance suite for spec §5-§9 ships in ``module_sim.conformance``:
 ``pytest --pyargs module_sim.conformance --hexbench-target virtual``.
+
+Serial targets: everything observable on the centre channel runs (ACK bytes, ``N`` for unknown
+codes, garbage resilience, ...). What is not observable on real hardware skips with the reason:
+the boot banners (the module booted before the port was opened: no power cycle), port bits and
+halting a board (``bench.module``; a test that checked ACKs before asking for the module has run
+those checks), UART0. Waits are timeouts in wall seconds; the suite's timeouts are several times
+the wire time of what they wait for. A test that compares times should allow
+``bench.time_tolerance_ns`` (0 on the virtual clock; on the wall clock two byte times plus
+scheduling latency, since bytes are timestamped on arrival at the PC).
 """
 
 from __future__ import annotations
@@ -29,7 +41,22 @@ def pytest_addoption(parser) -> None:
     group.addoption("--hexbench-target", default="virtual",
                     help="what the conformance suite talks to: 'virtual' (default) or 'serial:<url>'")
     group.addoption("--hexbench-profile", default="both", choices=["v2", "thesis-2009", "both"],
-                    help="firmware profile of the target (default: both, for virtual targets)")
+                    help="firmware profile of the target (default: both, for virtual targets; "
+                         "a serial target needs the board's profile)")
+    group.addoption("--hexbench-baud", type=int, default=300,
+                    help="IR baud rate of the target (default 300)")
+
+
+def pytest_configure(config) -> None:
+    target = config.getoption("--hexbench-target", "virtual")
+    if target == "virtual":
+        return
+    if not target.startswith("serial:") or not target[len("serial:"):]:
+        raise pytest.UsageError(f"--hexbench-target {target!r}: expected 'virtual' or "
+                                "'serial:<url>' (e.g. serial:/dev/ttyUSB0, serial:socket://host:7000)")
+    if config.getoption("--hexbench-profile") == "both":
+        raise pytest.UsageError(f"--hexbench-target {target}: give the board's firmware with "
+                                "--hexbench-profile v2 or --hexbench-profile thesis-2009")
 
 
 def pytest_generate_tests(metafunc) -> None:
@@ -56,19 +83,29 @@ class Bench:
     module_id: int = 1
     booted: bool = False
     boot_frames: list = field(default_factory=list)
+    bridge: object | None = None  # serial targets: the hil.bridge.CentreBridge
 
     @property
     def virtual(self) -> bool:
         return self.target == "virtual"
 
     @property
+    def time_tolerance_ns(self) -> int:
+        """How far a measured time may stray from the program's: exact on the virtual clock."""
+        return 0 if self.virtual else 2 * self.pc.byte_ns + 20_000_000
+
+    @property
     def module(self):
         if not self.virtual:
-            pytest.skip("port bits are only observable on a virtual target")
+            pytest.skip(f"port bits and board internals are not observable on {self.target} "
+                        "(centre-channel checks before this point ran and passed)")
         return self.fleet.modules[self.module_id]
 
     def boot(self, timeout_s: float = 30.0):
         """Wait for the boot sequence to finish (the ``COMM. LISTENING`` banner)."""
+        if not self.virtual:
+            pytest.skip(f"the boot banners need a power cycle: the module on {self.target} booted "
+                        "before the port was opened")
         if not self.booted:
             self.pc.expect("banner", banner="COMM_LST", timeout_s=timeout_s, since=0)
             self.boot_frames = list(self.pc.received)
@@ -77,7 +114,7 @@ class Bench:
 
 
 @pytest.fixture
-def hexbench_bench(hexbench_target: str, hexbench_profile: str) -> Iterator[Bench]:
+def hexbench_bench(request, hexbench_target: str, hexbench_profile: str) -> Iterator[Bench]:
     from bus.clock import VirtualClock
     from bus.scenario import loads
     from bus.session import SessionOptions
@@ -86,22 +123,73 @@ def hexbench_bench(hexbench_target: str, hexbench_profile: str) -> Iterator[Benc
 
     from .fleet import Fleet
 
+    baud = request.config.getoption("--hexbench-baud")
     if hexbench_target != "virtual":
-        pytest.skip(f"target {hexbench_target!r}: serial targets arrive with the hardware-in-the-loop "
-                    "bridge (hil); only 'virtual' is available")
+        yield from _serial_bench(hexbench_target, hexbench_profile, baud)
+        return
     clock = VirtualClock()
     bus = Bus(clock, f"conformance{next(_fleets)}", options=SessionOptions(isolated=True))
     try:
-        scenario = loads(f'profile = "{hexbench_profile}"\n[[modules]]\ncell = [0, 0]\nid = 1\n')
+        scenario = loads(f'profile = "{hexbench_profile}"\nir_baud = {baud}\n'
+                         '[[modules]]\ncell = [0, 0]\nid = 1\n')
         fleet = Fleet(bus, scenario)
-        pc = PcEndpoint(bus)
+        pc = PcEndpoint(bus, baud=baud)
         fleet.power_up(stagger=False)
         yield Bench(hexbench_target, hexbench_profile, clock, bus, pc, fleet)
     finally:
         bus.close()
 
 
+def _serial_bench(target: str, profile: str, baud: int) -> Iterator[Bench]:
+    """A PC endpoint whose transceiver is a serial port: bridge, bus and PC on the wall clock."""
+    import serial
+
+    from bus.clock import WallClock
+    from bus.session import SessionOptions
+    from bus.transport import Bus
+    from hil.bridge import CentreBridge
+    from planner_svc.endpoint import PcEndpoint
+
+    url = target[len("serial:"):]
+    clock = WallClock()
+    bus = Bus(clock, f"conformance{next(_fleets)}", options=SessionOptions(isolated=True))
+    bridge = None
+    try:
+        try:
+            bridge = CentreBridge(bus, url, baud=baud).start()
+        except (serial.SerialException, ValueError) as exc:
+            pytest.fail(f"target {target}: {exc}", pytrace=False)
+        pc = PcEndpoint(bus, baud=baud)
+        bench = Bench(target, profile, clock, bus, pc, bridge=bridge, booted=True)
+        _quiet(bench)
+        yield bench
+    finally:
+        if bridge is not None:
+            bridge.close()
+        bus.close()
+
+
+def _quiet(bench: Bench, *, quiet_bytes: int = 4, timeout_s: float = 10.0) -> None:
+    """Start from a quiet line: run until nothing arrived for a few byte times (a line the
+    module was still sending when the port opened is over)."""
+    clock, pc = bench.clock, bench.pc
+    quiet_ns = quiet_bytes * pc.byte_ns
+    deadline = clock.now_ns() + int(timeout_s * 1e9)
+    last = [clock.now_ns(), bench.bridge.port.bytes_in]
+
+    def quiet() -> bool:
+        now = clock.now_ns()
+        if bench.bridge.port.bytes_in != last[1]:
+            last[:] = [now, bench.bridge.port.bytes_in]
+        return now - last[0] >= quiet_ns
+
+    clock.run(until=quiet, until_ns=deadline)
+    pc.flush()
+    pc.received.clear()
+
+
 @pytest.fixture
 def pc(hexbench_bench: Bench):
-    hexbench_bench.boot()
+    if hexbench_bench.virtual:
+        hexbench_bench.boot()
     return hexbench_bench.pc

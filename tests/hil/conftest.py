@@ -1,0 +1,114 @@
+"""Fixtures for the hardware-in-the-loop tests: stand-ins behind real pseudo-terminals.
+
+Everything runs on the wall clock at 300 baud (33 ms a byte), so boots (~8 s) and the
+serial conformance runs (~10-16 s a shard) overlap: the first test that needs a stand-in
+starts all of them, and the conformance shards run as pytest subprocesses in the
+background while the bridge tests run.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterator
+
+import pytest
+
+from hil.standin import StandIn
+
+ROOT = Path(__file__).resolve().parents[2]
+BOOT_TIMEOUT_S = 40.0
+SHARD_TIMEOUT_S = 150.0
+
+#: Conformance shards against serial targets: (profile, -k expression). Each gets its own
+#: stand-in; together they are the whole suite for both profiles.
+SHARDS = [
+    ("v2", "unknown or garbage"),
+    ("v2", "not (unknown or garbage)"),
+    ("thesis-2009", "unknown or garbage"),
+    ("thesis-2009", "not (unknown or garbage)"),
+]
+
+
+@dataclass
+class Shard:
+    profile: str
+    select: str
+    standin: StandIn
+    done: threading.Event = field(default_factory=threading.Event)
+    returncode: int | None = None
+    output: str = ""
+    proc: subprocess.Popen | None = None
+
+    def command(self) -> list[str]:
+        return [sys.executable, "-m", "pytest", "-q", "-rs", "-p", "no:cacheprovider",
+                "--pyargs", "module_sim.conformance", "-k", self.select,
+                f"--hexbench-target=serial:{self.standin.path}", f"--hexbench-profile={self.profile}"]
+
+    def run(self) -> None:
+        """Wait for the module to boot, then run the suite against it (background thread)."""
+        try:
+            self.standin.wait_booted(BOOT_TIMEOUT_S)
+            self.proc = subprocess.Popen(self.command(), cwd=ROOT, stdout=subprocess.PIPE,
+                                         stderr=subprocess.STDOUT, text=True,
+                                         env={**os.environ, "PYTHONPATH": str(ROOT)})
+            self.output, _ = self.proc.communicate(timeout=SHARD_TIMEOUT_S)
+            self.returncode = self.proc.returncode
+        except Exception as exc:  # reported by the test that reads the shard
+            self.output += f"\n{type(exc).__name__}: {exc}"
+            if self.proc is not None and self.proc.poll() is None:
+                self.proc.kill()
+                self.output += "\n" + (self.proc.communicate()[0] or "")
+        finally:
+            self.standin.close()  # a wall-clock module ticks 100 times a second: stop it now
+            self.done.set()
+
+
+@dataclass
+class HilRig:
+    bridge_standin: StandIn
+    shards: list[Shard]
+    shard_timeout_s: float = SHARD_TIMEOUT_S
+
+
+def pytest_generate_tests(metafunc) -> None:
+    if "shard_index" in metafunc.fixturenames:
+        ids = [f"{p}-{'rest' if s.startswith('not') else 'unknown+garbage'}" for p, s in SHARDS]
+        metafunc.parametrize("shard_index", range(len(SHARDS)), ids=ids)
+
+
+@pytest.fixture(scope="session")
+def hil_rig(tmp_path_factory) -> HilRig:
+    """Start every stand-in at once (they boot in parallel) and the conformance shards."""
+    d = tmp_path_factory.mktemp("hil")
+    started: list[StandIn] = []
+    try:
+        bridge_standin = StandIn.on_pty(d / "ttyHEX", debug_link=d / "ttyDBG", profile="v2").start()
+        started.append(bridge_standin)
+        shards = []
+        for n, (profile, select) in enumerate(SHARDS):
+            s = StandIn.on_pty(d / f"ttyCONF{n}", profile=profile).start()
+            started.append(s)
+            shards.append(Shard(profile, select, s))
+        for shard in shards:
+            threading.Thread(target=shard.run, daemon=True, name=f"conformance-{shard.profile}").start()
+        yield HilRig(bridge_standin, shards)
+    finally:
+        for shard in locals().get("shards", []):
+            if shard.proc is not None and shard.proc.poll() is None:
+                shard.proc.kill()
+        for s in started:
+            s.close()
+
+
+@pytest.fixture(scope="module")
+def standin(hil_rig: HilRig) -> Iterator[StandIn]:
+    """A booted v2 stand-in (module 1) behind ``<tmp>/ttyHEX``, debug UART1 behind ``ttyDBG``;
+    stopped after the module's tests (the rig is session-wide only to overlap the boots)."""
+    hil_rig.bridge_standin.wait_booted(BOOT_TIMEOUT_S)
+    yield hil_rig.bridge_standin
+    hil_rig.bridge_standin.close()
