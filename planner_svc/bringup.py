@@ -141,7 +141,8 @@ class BringUp:
                                    f"localized after {self.localize_steps} steps (not connected to "
                                    "the reference, or their side IR links fail)")
             self.localize_step()
-        self.say(f"bring-up: localized {n} modules in {self.localize_steps} Localize step(s)")
+        done = sum(1 for r in reports.values() if r["localized"])
+        self.say(f"bring-up: localized {done} of {n} modules in {self.localize_steps} Localize step(s)")
         view = Fleetview(source="location reports")
         for i, r in reports.items():
             if not r["localized"]:

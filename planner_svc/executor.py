@@ -144,9 +144,20 @@ class Executor:
         else:
             self.say(f"note: m{mob.id} is real and not localized: its move is confirmed by the "
                      "ACKs alone")
+        name = f"m{mob.id}"
         self.pc.bus.put(self.pc.bus.keys.root + "/world/confirm", Pose(
-            f"m{mob.id}", mob.id, move.goal.x, move.goal.y, mob.orientation,
+            name, mob.id, move.goal.x, move.goal.y, mob.orientation,
             self.pc.bus.clock.now_ns(), "real").to_json())
+        if self.truth.present:  # the world takes the pose (or says why not) before we go on
+            clock = self.pc.bus.clock
+
+            def taken() -> bool:
+                p = self.truth.poses.get(name)
+                return p is not None and (p.x, p.y) == tuple(move.goal)
+            clock.run(until=taken, until_ns=clock.now_ns() + int(SETTLE_S * NS_PER_S))
+            if not taken():
+                raise MoveFailed(f"move {desc}: the world did not take m{mob.id}'s confirmed pose "
+                                 f"{move.goal}", mob.id, move, "confirm")
 
     def _releases(self, move: Move, mid: int) -> list[tuple[int, int]]:
         """(module id, body joint) solenoids to open so the mobile can leave: for every

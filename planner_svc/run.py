@@ -35,6 +35,9 @@ def add_run_arguments(p: argparse.ArgumentParser, *, with_fleet: bool) -> None:
         p.add_argument("--fault", action="append", default=[], metavar="SPEC",
                        help="inject an actuator fault through the world, e.g. m3.S2-:off or "
                             "m3.J4:closed (repeatable)")
+        p.add_argument("--hil-port", metavar="URL",
+                       help="the central IR transceiver of the scenario's real modules (any "
+                            "pyserial URL); default: their 'port' in the scenario")
     add_arguments(p)
 
 
@@ -57,6 +60,26 @@ def _scenario(args: argparse.Namespace):
     if args.profile:
         changes["profile"] = args.profile
     return dataclasses.replace(sc, **changes)
+
+
+def _bridges(bus, scenario, hil_port: str | None) -> list:
+    """Serial bridges for the scenario's real modules: one for their shared central IR
+    transceiver (``--hil-port`` or the modules' ``port``), one per ``debug_port``."""
+    from hil.bridge import CentreBridge, DebugBridge
+
+    real = [m for m in scenario.modules if m.kind == "real"]
+    if not real:
+        return []
+    ports = sorted({hil_port} if hil_port else {m.port for m in real if m.port})
+    if not ports:
+        raise UsageError(f"scenario {scenario.name!r}: real modules need a serial port: give "
+                         "--hil-port URL or 'port' in their [[modules]] entry")
+    # wait=True: a port that is not there yet is a fault event and is retried, not a crash
+    out = [CentreBridge(bus, url).start(wait=True) for url in ports]
+    out += [DebugBridge(bus, m.debug_port, m.id).start(wait=True) for m in real if m.debug_port]
+    for b in out:
+        print(f"hil: bridging {b.url} ({b.link.value}) onto {bus.keys.root}", flush=True)
+    return out
 
 
 def _timing(text: str) -> tuple[int, int, int]:
@@ -95,12 +118,18 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
     if not with_fleet and args.clock == "virtual":
         raise UsageError("a planner in its own process needs --clock wall: a virtual clock cannot "
                          "be shared with a fleet in another process")
+    real = [m for m in scenario.modules if m.kind == "real"]
+    if real and args.clock == "virtual":
+        raise UsageError(f"scenario {scenario.name!r} has real modules "
+                         f"({', '.join(f'm{m.id}' for m in real)}): real hardware runs on the wall "
+                         "clock; use --clock wall")
     opts = SessionOptions.from_args(args)
     if args.clock == "virtual" and not (opts.connect or opts.listen):
         opts.isolated = True  # a virtual run is one process; others would break determinism
     clock = make_clock(args.clock)
     bus = Bus(clock, args.fleet, options=opts)
     recorder = None
+    bridges: list = []
     try:
         meta = RunMeta(scenario.name, scenario.profile, scenario.seed, args.planner, args.clock,
                        list(sys.argv), {}, fleet=args.fleet)
@@ -118,6 +147,7 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
                                  say=lambda s: print(s, flush=True))
         if with_fleet:  # after the service subscribed: it sees the world's first poses
             from module_sim.fleet import Fleet
+            bridges.extend(_bridges(bus, scenario, getattr(args, "hil_port", None)))
             fleet = Fleet(bus, scenario)
             fleet.power_up()
         result = service.run(since)
@@ -126,6 +156,8 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
             clock.run(until_ns=clock.now_ns() + 1)  # let the last samples reach the recorder
         print(result.summary(), flush=True)
     finally:
+        for b in bridges:
+            b.close()
         if recorder is not None:
             tally = recorder.close()
             print(f"recorded {tally.frames} frames, {tally.messages} samples -> "

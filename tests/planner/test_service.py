@@ -35,7 +35,7 @@ def test_run_reaches_the_goal(capsys, scenario, planner, moves):
     last = out.strip().splitlines()[-1]
     assert last.startswith(f"{planner}: goal reached")
     assert moves is None or f"moves {moves} " in last
-    assert "localized 6 modules in 3 Localize step(s)" in out  # bring-up over the bus
+    assert "localized 6 of 6 modules in 3 Localize step(s)" in out  # bring-up over the bus
     assert f"goal 6/6" in out
 
 
