@@ -256,3 +256,26 @@ def _build(d: dict[str, Any], source: str, text: str) -> Scenario:
     return Scenario(name=name, modules=modules, fixed=fixed, goal=goal, obstacles=obstacles,
                     profile=profile, seed=seed, description=str(d.get("description", "")),
                     source=source, ir_baud=ir_baud, bit_error_rate=float(ber), faults=faults)
+
+
+def override(sc: Scenario, *, seed: int | None = None, profile: str | None = None,
+             faults: list[str] = ()) -> Scenario:
+    """A copy of ``sc`` with command-line overrides; extra fault specs are checked against
+    the fleet (:class:`ScenarioError` names the bad one)."""
+    import dataclasses
+
+    ids = {f"m{m.id}" for m in sc.modules}
+    extra = []
+    for spec in faults:
+        try:
+            f = ActuatorFault.parse(spec)
+        except FaultSpecError as exc:
+            raise ScenarioError(str(exc)) from None
+        if f.module not in ids:
+            raise ScenarioError(f"fault {spec}: scenario {sc.name!r} has no module {f.module}")
+        extra.append(f)
+    if profile is not None and profile not in PROFILES:
+        raise ScenarioError(f"profile {profile!r}: expected one of {', '.join(PROFILES)}")
+    return dataclasses.replace(sc, faults=list(sc.faults) + extra,
+                               seed=sc.seed if seed is None else seed,
+                               profile=profile or sc.profile)

@@ -7,7 +7,6 @@ recorder (``hexbench record``) joins the same fleet over zenoh.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import signal
 
 from bus.cli import UsageError
@@ -35,9 +34,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def cmd_fleet(args: argparse.Namespace) -> int:
     from bus.clock import make_clock
-    from bus.faults import ActuatorFault, FaultSpecError
     from bus.keys import check_chunk
-    from bus.scenario import ScenarioError, load
+    from bus.scenario import ScenarioError, load, override
     from bus.session import SessionOptions
     from bus.timing import NS_PER_S
     from bus.transport import Bus
@@ -45,19 +43,12 @@ def cmd_fleet(args: argparse.Namespace) -> int:
     from .fleet import Fleet
 
     try:
-        sc = load(args.scenario)
-        faults = [ActuatorFault.parse(f) for f in args.fault]
+        sc = override(load(args.scenario), seed=args.seed, profile=args.profile, faults=args.fault)
         check_chunk(args.fleet, "fleet")
-    except (ScenarioError, FaultSpecError, ValueError) as exc:
+    except (ScenarioError, ValueError) as exc:
         raise UsageError(str(exc)) from None
     if args.clock == "virtual" and args.seconds is None:
         raise UsageError("--clock virtual needs --seconds: nothing else can join a virtual run")
-    changes = {"faults": list(sc.faults) + faults}
-    if args.profile:
-        changes["profile"] = args.profile
-    if args.seed is not None:
-        changes["seed"] = args.seed
-    sc = dataclasses.replace(sc, **changes)
     clock = make_clock(args.clock)
     opts = SessionOptions.from_args(args)
     if args.clock == "virtual" and not (opts.connect or opts.listen):

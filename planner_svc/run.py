@@ -9,7 +9,6 @@ planner_svc <scenario>`` is the planner service alone: it joins a fleet started 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 from pathlib import Path
 
@@ -42,24 +41,13 @@ def add_run_arguments(p: argparse.ArgumentParser, *, with_fleet: bool) -> None:
 
 
 def _scenario(args: argparse.Namespace):
-    from bus.faults import ActuatorFault, FaultSpecError
-    from bus.scenario import ScenarioError, load
+    from bus.scenario import ScenarioError, load, override
 
     try:
-        sc = load(args.scenario)
-        faults = [ActuatorFault.parse(f) for f in getattr(args, "fault", [])]
-    except (ScenarioError, FaultSpecError) as exc:
+        return override(load(args.scenario), seed=args.seed, profile=args.profile,
+                        faults=getattr(args, "fault", []))
+    except ScenarioError as exc:
         raise UsageError(str(exc)) from None
-    ids = {f"m{m.id}" for m in sc.modules}
-    for f in faults:
-        if f.module not in ids:
-            raise UsageError(f"--fault {f}: scenario {sc.name!r} has no module {f.module}")
-    changes = {"faults": list(sc.faults) + faults}
-    if args.seed is not None:
-        changes["seed"] = args.seed
-    if args.profile:
-        changes["profile"] = args.profile
-    return dataclasses.replace(sc, **changes)
 
 
 def _bridges(bus, scenario, hil_port: str | None) -> list:
