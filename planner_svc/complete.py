@@ -1,41 +1,44 @@
 """``complete``: a heuristic planner for large fleets that always finishes.
 
-Idea: modules are interchangeable, so only electrons (modules off the goal) need to
-move, each to some void (empty goal cell). One electron at a time walks over the
-surface of the otherwise still structure to a void:
+Modules are interchangeable, so only electrons (modules off the goal) need to move,
+each to some void (empty goal cell). Under Table 4-3 a lone walker cannot cross a
+notch of the surface (a free cell with four occupied neighbours: no rotation pivots
+across its mouth), so on a rough structure each module reaches only a short stretch
+of the surface. Material still flows by *relays*:
 
-1. electrons are paired with voids by a minimum-cost assignment on hex distance
-   (:func:`planner_svc.bounds.min_cost_assignment`), so the walks add up to little more
-   than the lower bound the benchmark compares against; the pairing is repaired, not
-   recomputed, when a walk ends on another void than planned;
-2. voids are filled deepest first (farthest from the outside of the goal shape) and
-   never so that a neighbouring void can no longer be entered (Table 4-3 needs three
-   consecutive free sides to roll into a cell), so no pocket is sealed;
-3. a walker must not be an articulation point (with it lifted out the rest stays
-   connected, so every step of its walk keeps the structure connected as it stays
-   latched to a substrate); a local test (its occupied neighbours form one arc)
-   decides most cases, a breadth-first search the rest;
-4. the walk is a breadth-first search over the cells the lone walker reaches by legal
-   rotations (:mod:`planner_svc.rules`) with the rest of the structure still.
+1. every movable module (not the fixed one, not an articulation point -- a local test
+   that its occupied neighbours form one arc decides most cases, a breadth-first
+   search the rest -- and with a legal rotation) gets its reach: a breadth-first search
+   over the cells it reaches by legal rotations (:mod:`planner_svc.rules`) with the
+   rest still; with it lifted out the rest stays connected, so every step of its walk
+   keeps the structure connected as it stays latched to a substrate;
+2. Dijkstra over modules, backwards from the voids, finds the cheapest chain
+   electron -> settled module -> ... -> void: a settled module walks to a void, the
+   module behind it walks into the cell it left, and so on back to an electron. The
+   cost is the walks' length, plus a large penalty for a fill that makes a nearby void
+   unenterable (no pocket is sealed while another choice exists), minus a bonus for
+   enclosed and deep voids (they only get harder to enter);
+3. the chain's walks are made from the void end, each re-searched on the current
+   structure;
+4. when no chain exists, a small best-first search in a window around a blocked void
+   (or trapped electron) may move settled modules out and back
+   (:func:`local_repair`), pushing the vacancy out to the surface.
 
-When no electron can reach a void, modules already on goal cells may walk to a void
-instead (this can open a blocked pocket or free a trapped electron). If the heuristic
-is still stuck it retries on the reverse problem (goal to initial, played backwards:
-every rotation is undone about the same vertex, sweeping the same cells). If that
-fails too, small fleets (``exact_limit`` modules or fewer) fall back to
+If the heuristic is stuck it retries on the reverse problem (goal to initial, played
+backwards: every rotation is undone about the same vertex, sweeping the same cells).
+If that fails too, small fleets (``exact_limit`` modules or fewer) fall back to
 :mod:`planner_svc.search` from the current configuration, which also proves
-unreachability; larger fleets report that the heuristic is stuck, without claiming
+unreachability (moves are reversible, so unreachable from there is unreachable from
+the start); larger fleets report that the heuristic is stuck, without claiming
 unreachability.
 """
 
 from __future__ import annotations
 
+import heapq
+import itertools
 from collections import deque
-from typing import Callable
 
-import numpy as np
-
-from .bounds import distance_matrix, min_cost_assignment
 from .plan import Plan, Problem
 from .rules import (RULE_OFFSETS, Coord, Move, MoveRule, find_move, hex_distance,
                     neighbours_xy, to_move, xy)
@@ -45,14 +48,25 @@ from .search import DEFAULT_MARGIN, region_around, search_moves
 EXACT_LIMIT = 10
 #: Configurations the exact fallback may expand.
 EXACT_BUDGET = 200_000
-#: How many detours of goal-cell modules the heuristic may make, per module.
-UNBLOCK_BUDGET_PER_MODULE = 2
-
-#: How many modules may be parked to dig out pockets, per module.
-DIG_BUDGET_PER_MODULE = 4
-#: Walk searches per step for assigned pairs and for digging, before the next strategy.
-ASSIGNED_TRIES = 8
-DIG_TRIES = 12
+#: Chain cost added per void that a fill would make unenterable.
+UNSAFE_PENALTY = 1000
+#: Chain cost taken off per unit of void depth (deep voids first, they seal soonest).
+DEPTH_BONUS = 0.5
+#: Chain cost added per relay (prefer direct walks on ties).
+RELAY_PENALTY = 0.1
+#: Chain cost taken off per settled neighbour of the void (enclosed voids first).
+ENCLOSED_BONUS = 3.0
+#: Cells a relay walk may explore.
+RELAY_LIMIT = 400
+#: Local repair windows (radius, expansions), tried in turn around a blocked void.
+REPAIR_WINDOWS = ((3, 1000), (4, 2000))
+#: Blocked cells tried per repair step, and repair searches per run (bounds the time).
+REPAIR_TARGETS = 4
+REPAIR_CALLS = 16
+#: Weight of the remaining defects against moves made in the local repair search.
+REPAIR_WEIGHT = 3
+#: Move cap per module: relays that wander without filling voids must end.
+MAX_MOVES_PER_MODULE = 60
 
 Path = list[tuple[Coord, MoveRule]]
 
@@ -109,27 +123,21 @@ def can_move(occ: set[Coord], c: Coord, obstacles: set[Coord]) -> bool:
 
 # --- walks ---------------------------------------------------------------------------------
 def walk(rest: set[Coord], start: Coord, targets: set[Coord], obstacles: set[Coord],
-         limit: int | None = None,
-         choose: Callable[[list[Coord], dict[Coord, int]], Coord] | None = None
-         ) -> Path | None:
-    """Shortest walk of a lone module from ``start`` to any cell of ``targets``.
+         limit: int | None = None) -> Path | None:
+    """Shortest walk of a lone module from ``start`` to the nearest cell of ``targets``.
 
     ``rest`` is the structure without the walker; it must be connected and stays
     still. Returns the rotations as ``(cell before, rule)`` or None. ``limit`` caps the
-    number of cells explored. ``choose(found, depth)`` picks among all reachable
-    targets (default: the nearest, and the search stops there).
+    number of cells explored.
     """
     came: dict[Coord, tuple[Coord, MoveRule] | None] = {start: None}
-    depth = {start: 0}
     todo = deque([start])
-    found: list[Coord] = []
+    end: Coord | None = None
     while todo:
         c = todo.popleft()
         if c in targets and c != start:
-            found.append(c)
-            if choose is None:
-                break
-            # A walker may pass over a void on its way to a better one.
+            end = c
+            break
         cx, cy = c
         for rule, (sx, sy), empties, (gx, gy) in RULE_OFFSETS:
             g = (cx + gx, cy + gy)
@@ -139,39 +147,68 @@ def walk(rest: set[Coord], start: Coord, targets: set[Coord], obstacles: set[Coo
                    for ex, ey in empties):
                 continue
             came[g] = (c, rule)
-            depth[g] = depth[c] + 1
             todo.append(g)
         if limit is not None and len(came) > limit:
             break
-    if not found:
+    if end is None:
         return None
-    c = found[0] if choose is None else choose(found, depth)
     path: Path = []
-    while (step := came[c]) is not None:
+    while (step := came[end]) is not None:
         path.append(step)
-        c = step[0]
+        end = step[0]
     return path[::-1]
 
 
-def _end(path: Path) -> Coord:
-    """Where a walk ends."""
-    (x, y), rule = path[-1]
-    gx, gy = _GOAL_OFFSET[rule]
-    return (x + gx, y + gy)
+def bfs(rest: set[Coord], start: Coord, obstacles: set[Coord]
+        ) -> dict[Coord, tuple[int, Coord | None, MoveRule | None]]:
+    """Walk lengths from ``start`` to every cell a lone walker reaches over ``rest``:
+    ``cell -> (moves, previous cell, rule)``."""
+    out: dict[Coord, tuple[int, Coord | None, MoveRule | None]] = {start: (0, None, None)}
+    todo = deque([start])
+    while todo:
+        c = todo.popleft()
+        cx, cy = c
+        d = out[c][0] + 1
+        for rule, (sx, sy), empties, (gx, gy) in RULE_OFFSETS:
+            g = (cx + gx, cy + gy)
+            if g in out or g in rest or g in obstacles or (cx + sx, cy + sy) not in rest:
+                continue
+            if any((cx + ex, cy + ey) in rest or (cx + ex, cy + ey) in obstacles
+                   for ex, ey in empties):
+                continue
+            out[g] = (d, c, rule)
+            todo.append(g)
+    return out
+
+
+_RING2 = tuple((dx, dy) for dx in range(-2, 3) for dy in range(-2, 3)
+               if 0 < (abs(dx) + abs(dy) + abs(dx + dy)) // 2 <= 2)
+
+
+def ring2(c: Coord) -> list[Coord]:
+    """The cells at hex distance 1 or 2 from ``c``."""
+    x, y = c
+    return [(x + dx, y + dy) for dx, dy in _RING2]
 
 
 # --- fill order ------------------------------------------------------------------------------
-def enterable(settled: set[Coord], void: Coord) -> bool:
+def enterable(settled: set[Coord], void: Coord, obstacles: frozenset[Coord] | set[Coord] = frozenset()
+              ) -> bool:
     """Whether a void can still be entered once its neighbours stop moving.
 
-    Table 4-3: a module rolling into a cell about its substrate arrives from one side
-    and needs the two sides after that empty, so the cell's other occupied neighbours
-    must all lie within three consecutive sides (the substrate's and the two beyond).
+    Table 4-3: some row must bring a walker from a free neighbour into ``void`` about
+    an occupied substrate with the row's three swept cells free.
     """
-    x, y = void
-    ring = [(x + dx, y + dy) in settled for dx, dy in _DIRS]
-    return any(not ring[i] and not ring[(i + 1) % 6] and not ring[(i + 2) % 6]
-               for i in range(6))
+    vx, vy = void
+    for _, (sx, sy), empties, (gx, gy) in RULE_OFFSETS:
+        mx, my = vx - gx, vy - gy
+        if (mx, my) in settled or (mx, my) in obstacles or (mx + sx, my + sy) not in settled:
+            continue
+        if any((mx + ex, my + ey) in settled or (mx + ex, my + ey) in obstacles
+               for ex, ey in empties):
+            continue
+        return True
+    return False
 
 
 def goal_depth(goal: set[Coord]) -> dict[Coord, int]:
@@ -194,20 +231,6 @@ def goal_depth(goal: set[Coord]) -> dict[Coord, int]:
     return depth
 
 
-def goal_layers(goal: set[Coord], fixed: Coord) -> dict[Coord, int]:
-    """Distance of each goal cell from the fixed module, inside the goal shape."""
-    layer = {fixed: 0}
-    todo = deque([fixed])
-    while todo:
-        c = todo.popleft()
-        for n in neighbours_xy(c):
-            if n in goal and n not in layer:
-                layer[n] = layer[c] + 1
-                todo.append(n)
-    return layer
-
-
-# --- the planner -------------------------------------------------------------------------------
 def plan_complete(plan: Plan, exact_limit: int = EXACT_LIMIT) -> None:
     """Fill ``plan`` (serial, one move per step); see the module docstring.
 
@@ -244,9 +267,9 @@ def reverse_steps(plan: Plan, problem: Problem) -> list[list[Move]]:
 
 
 class _Heuristic:
-    """One forward run of the electron-to-void heuristic on ``plan.problem``."""
+    """One forward run of the relay heuristic on ``plan.problem``."""
 
-    def __init__(self, plan: Plan) -> None:
+    def __init__(self, plan: Plan, enclosed_bonus: float = ENCLOSED_BONUS) -> None:
         p = plan.problem
         self.plan = plan
         self.occ = {xy(c) for c in p.initial}
@@ -254,199 +277,253 @@ class _Heuristic:
         self.fixed = xy(p.fixed)
         self.obstacles = {xy(c) for c in p.obstacles}
         self.depth = goal_depth(self.goal)
-        self.unblock_budget = UNBLOCK_BUDGET_PER_MODULE * len(self.occ)
+        self.enclosed_bonus = enclosed_bonus
         self.seen = {frozenset(self.occ)}
-        #: electron -> void it is meant to fill (repaired as walks end elsewhere).
-        self.assigned: dict[Coord, Coord] = {}
-        #: A sealed void or trapped electron being dug out, and the cells opened for it.
-        self.dig_target: Coord | None = None
-        self.reserved: set[Coord] = set()
-        self.dig_budget = DIG_BUDGET_PER_MODULE * len(self.occ)
-        self._assign()
+        self.stats: dict[str, int] = {}
+        #: (target, radius) pairs whose local repair failed since the last repair.
+        self.repair_failed: set[tuple[Coord, int]] = set()
+        self.repair_budget = REPAIR_CALLS
 
-    # -- pairing
-    def _assign(self) -> None:
-        """Minimum-cost pairing of the current electrons with the current voids."""
-        electrons = sorted(self.occ - self.goal)
-        voids = sorted(self.goal - self.occ)
-        if not electrons:
-            self.assigned = {}
-            return
-        col, _ = min_cost_assignment(distance_matrix(electrons, voids))
-        self.assigned = {e: voids[j] for e, j in zip(electrons, col)}
-
-    def _repair(self, start: Coord, end: Coord) -> None:
-        """The module at ``start`` now sits on ``end``: keep the pairing consistent."""
-        a = self.assigned
-        if start in a:                       # an electron moved
-            v = a.pop(start)
-            if end in self.goal:
-                if v != end:
-                    # Whoever was to fill ``end`` takes over this electron's void.
-                    other = next(e for e, w in a.items() if w == end)
-                    a[other] = v
+    def run(self) -> None:
+        """Relay until the goal is reached or neither a relay nor an opening move exists."""
+        goal = self.goal
+        max_moves = MAX_MOVES_PER_MODULE * len(goal) + 100
+        while self.occ != goal:
+            if self.plan.moves > max_moves:
+                self.plan.reason = (f"complete heuristic gave up after {self.plan.moves} moves "
+                                    f"with {len(goal - self.occ)} voids left")
+                return
+            if self._relay_step():
+                self.stats["relay"] = self.stats.get("relay", 0) + 1
+            elif self._repair_step():
+                self.stats["repair"] = self.stats.get("repair", 0) + 1
             else:
-                a[end] = v                   # parked off the goal: still an electron
-        elif end in self.goal:
-            # A settled module moved to a void: its old cell is a void now, for the
-            # electron that was to fill ``end``.
-            other = next(e for e, w in a.items() if w == end)
-            a[other] = start
-        else:
-            a[end] = start                   # a settled module left the goal
+                self.plan.reason = (f"complete heuristic stuck after {self.plan.moves} moves "
+                                    f"with {len(goal - self.occ)} voids left")
+                return
+        self.plan.ok = True
 
-    # -- moves
+    # -- helpers
     def _do_walk(self, path: Path) -> None:
+        """Make the rotations of ``path`` (of one or several modules), one per step."""
         occ, steps = self.occ, self.plan.steps
-        start = path[0][0]
         for cell, rule in path:
             # Releases depend on who is next to the walker now, so build each move here.
             mv = to_move(occ, cell, rule)
             steps.append([mv])
             occ.discard(cell)
             occ.add(xy(mv.goal))
-        self._repair(start, _end(path))
+        self.seen.add(frozenset(occ))
 
-    def _mobile(self, c: Coord) -> bool:
-        return (c != self.fixed and can_move(self.occ, c, self.obstacles)
-                and not is_cut(self.occ, c))
-
-    def _safe(self, v: Coord, settled: set[Coord]) -> bool:
-        """Filling ``v`` keeps every enterable neighbouring void enterable."""
-        after = settled | {v}
-        return all(enterable(after, w) or not enterable(settled, w)
-                   for w in neighbours_xy(v) if w in self.goal and w not in self.occ)
-
-    def run(self) -> None:
-        goal = self.goal
-        while self.occ != goal:
-            if self.dig_target is not None and self._dig_done():
-                self.dig_target, self.reserved = None, set()
-            if not (self._assigned_step(unsafe=False) or self._any_step(unsafe=False)
-                    or self._assigned_step(unsafe=True) or self._any_step(unsafe=True)
-                    or self._unblock_step() or self._dig_step()):
-                self.plan.reason = (f"complete heuristic stuck after {self.plan.moves} moves "
-                                    f"with {len(goal - self.occ)} voids left")
-                return
-            self.seen.add(frozenset(self.occ))
-        self.plan.ok = True
+    def _mobile(self, c: Coord, occ: set[Coord] | None = None) -> bool:
+        occ = self.occ if occ is None else occ
+        return (c != self.fixed and c in occ and can_move(occ, c, self.obstacles)
+                and not is_cut(occ, c))
 
     def _targets(self) -> set[Coord]:
-        """Voids that may be filled now (not the cells dug open around a pocket)."""
-        return self.goal - self.occ - self.reserved
+        """The voids (empty goal cells)."""
+        return self.goal - self.occ
 
-    def _assigned_step(self, unsafe: bool) -> bool:
-        """Walk one electron to its assigned void, deepest safe void first."""
-        settled = self.occ & self.goal
+    def _sealed_by(self, v: Coord, settled: set[Coord]) -> int:
+        """How many enterable voids near ``v`` filling it would make unenterable."""
+        after = settled | {v}
+        ob = self.obstacles
+        return sum(1 for w in ring2(v) if w in self.goal and w not in self.occ
+                   and not enterable(after, w, ob) and enterable(settled, w, ob))
+
+    def _relay_step(self) -> bool:
+        """Fill one void by the cheapest relay chain, and make its walks.
+
+        A lone walker cannot cross a notch (a free cell with four occupied neighbours: no
+        rotation pivots across its mouth), so on a rough surface each module reaches
+        only a short stretch of it. Material still flows by relays: a settled module
+        walks to a void and a module behind it takes its cell, and so on back to an
+        electron. The chain is found by Dijkstra over modules: a module's cost is the
+        length of its walk to a void, or of its walk into the cell of a settled module
+        that has left (reach recomputed without that module) plus that module's cost.
+        """
+        occ, goal, obstacles = self.occ, self.goal, self.obstacles
         targets = self._targets()
-        dig = self.dig_target
-        order = sorted(((e, v) for e, v in self.assigned.items() if v in targets),
-                       key=lambda ev: (ev[1] != dig, -self.depth.get(ev[1], 0),
-                                       hex_distance(*ev), ev))
-        tried = 0
-        for e, v in order:
-            if not enterable(self.occ, v) or self._safe(v, settled) == unsafe:
-                continue
-            if not self._mobile(e):
-                continue
-            path = walk(self.occ - {e}, e, {v}, self.obstacles)
-            tried += 1
-            if path:
-                self._do_walk(path)
-                return True
-            if tried >= ASSIGNED_TRIES:
-                break
-        return False
-
-    def _any_step(self, unsafe: bool) -> bool:
-        """Walk some electron to the best void it can reach (pairing then repaired)."""
-        settled = self.occ & self.goal
-        voids = {v for v in self._targets() if unsafe or self._safe(v, settled)}
-        if not voids:
+        if not targets:
             return False
-        electrons = [e for e in sorted(self.occ - self.goal) if self._mobile(e)]
-        dig = self.dig_target
-
-        def choose(found: list[Coord], depth: dict[Coord, int]) -> Coord:
-            return max(found, key=lambda v: (v == dig, self.depth.get(v, 0), -depth[v], v))
-        for e in _by_distance_to(electrons, sorted(voids)):
-            path = walk(self.occ - {e}, e, voids, self.obstacles, choose=choose)
-            if path:
-                self._do_walk(path)
-                return True
-        return False
-
-    def _dig_done(self) -> bool:
-        t = self.dig_target
-        if t in self.goal:
-            return t in self.occ
-        return t not in self.occ or self._mobile(t)
-
-    def _dig_step(self) -> bool:
-        """Open a sealed void (or free a trapped electron) by parking the nearest movable
-        modules outside the goal; the dug cells stay empty until the pocket is filled."""
-        if self.dig_budget <= 0:
+        settled = occ & goal
+        mobile = [k for k in sorted(occ) if self._mobile(k)]
+        regions = {k: bfs(occ - {k}, k, obstacles) for k in mobile}
+        inf = float("inf")
+        dist: dict[Coord, float] = {}
+        nxt: dict[Coord, Coord] = {}            # module -> cell it walks to
+        penalty: dict[Coord, float] = {}
+        for k in mobile:
+            best, where = inf, None
+            for c, (d, _, _) in regions[k].items():
+                if c in targets and c != k:
+                    if c not in penalty:
+                        # Voids whose filling seals others wait; enclosed ones go first.
+                        penalty[c] = (UNSAFE_PENALTY * self._sealed_by(c, settled)
+                                      - DEPTH_BONUS * self.depth.get(c, 0)
+                                      - self.enclosed_bonus * sum(n in settled
+                                                             for n in neighbours_xy(c)))
+                    cost = d + penalty[c]
+                    if cost < best:
+                        best, where = cost, c
+            if where is not None:
+                dist[k], nxt[k] = best, where
+        # Who could take the cell of each settled mobile module once it has left.
+        near: dict[Coord, set[Coord]] = {}
+        for a, reg in regions.items():
+            for c in reg:
+                near.setdefault(c, set()).add(a)
+        into: dict[Coord, list[tuple[Coord, int]]] = {}
+        for b in mobile:
+            if b not in goal:
+                continue
+            cands: set[Coord] = set()
+            for c in ring2(b):
+                cands |= near.get(c, set())
+                if c in occ and hex_distance(b, c) == 1:
+                    cands.add(c)
+            cands.discard(b)
+            cands.discard(self.fixed)
+            if not cands:
+                continue
+            rest = occ - {b}
+            for a in sorted(cands):
+                if not can_move(rest, a, obstacles) or is_cut(rest, a):
+                    continue
+                path = walk(rest - {a}, a, {b}, obstacles, limit=RELAY_LIMIT)
+                if path:
+                    into.setdefault(b, []).append((a, len(path)))
+        # Dijkstra backwards from the voids.
+        heap = [(d, k) for k, d in dist.items()]
+        heapq.heapify(heap)
+        done: set[Coord] = set()
+        while heap:
+            d, b = heapq.heappop(heap)
+            if b in done or d > dist.get(b, inf):
+                continue
+            done.add(b)
+            for a, w in into.get(b, ()):
+                if d + w + RELAY_PENALTY < dist.get(a, inf):
+                    dist[a] = d + w + RELAY_PENALTY
+                    nxt[a] = b
+                    heapq.heappush(heap, (dist[a], a))
+        electrons = [e for e in occ - goal if e in dist]
+        if not electrons:
             return False
-        occ = self.occ
-        if self.dig_target is None:
-            sealed = sorted((v for v in self.goal - occ if not enterable(occ, v)),
-                            key=lambda v: (-self.depth.get(v, 0), v))
-            trapped = [e for e in sorted(occ - self.goal) if not self._mobile(e)]
-            if not sealed and not trapped:
+        e = min(electrons, key=lambda c: (dist[c], c))
+        chain = [e]
+        while nxt[chain[-1]] in occ and nxt[chain[-1]] != chain[-1]:
+            if len(chain) > len(occ):
                 return False
-            self.dig_target = (sealed or trapped)[0]
-        t = self.dig_target
-        park = {c for c in self._free_shell() if c not in self.goal and hex_distance(c, t) >= 3}
-        movers = [c for c in occ if c != t and self._mobile(c)]
-        movers.sort(key=lambda c: (hex_distance(c, t), c))
-        for k in movers[:DIG_TRIES]:
-            path = walk(occ - {k}, k, park, self.obstacles)
-            if path:
-                if frozenset((occ - {k}) | {_end(path)}) in self.seen:
-                    continue
-                self._do_walk(path)
-                self.dig_budget -= 1
-                if k in self.goal:
-                    self.reserved.add(k)
-                return True
-        return False
+            chain.append(nxt[chain[-1]])
+        hops = [(m, nxt[m]) for m in chain]
+        moved = False
+        for m, target in reversed(hops):
+            if m == self.fixed or m not in self.occ or target in self.occ:
+                break
+            if is_cut(self.occ, m):
+                break
+            path = walk(self.occ - {m}, m, {target}, obstacles)
+            if not path:
+                break
+            key = frozenset((self.occ - {m}) | {target})
+            if key in self.seen and m in goal:
+                break
+            self._do_walk(path)
+            self.seen.add(frozenset(self.occ))
+            moved = True
+        return moved
 
-    def _free_shell(self) -> set[Coord]:
-        """Free cells next to the structure (where a walker may stop)."""
-        out = set()
-        for x, y in self.occ:
-            for dx, dy in _DIRS:
-                c = (x + dx, y + dy)
-                if c not in self.occ and c not in self.obstacles:
-                    out.add(c)
-        return out
-
-    def _unblock_step(self) -> bool:
-        """Detour: a module already on a goal cell walks to a void; its own cell becomes
-        the void, possibly one an electron can reach."""
-        if self.unblock_budget <= 0:
+    def _repair_step(self) -> bool:
+        """Fill a blocked void (or free a trapped electron) by a local search that may
+        move settled modules out and back (:func:`local_repair`)."""
+        if self.repair_budget <= 0:
             return False
-        occ = self.occ
-        voids = self._targets()
-        settled = occ & self.goal
-        keepers = [c for c in sorted(settled) if self._mobile(c)]
-        for k in _by_distance_to(keepers, sorted(voids)):
-            path = walk(occ - {k}, k, voids, self.obstacles)
-            if path:
-                if frozenset((occ - {k}) | {_end(path)}) in self.seen:
+        occ, goal = self.occ, self.goal
+        voids = sorted((v for v in self._targets() if not enterable(occ, v, self.obstacles)),
+                       key=lambda v: (-self.depth.get(v, 0), v))
+        trapped = [e for e in sorted(occ - goal) if not self._mobile(e)]
+        for radius, budget in REPAIR_WINDOWS:
+            for t in (voids + trapped)[:REPAIR_TARGETS]:
+                self.repair_budget -= 1
+                if (t, radius) in self.repair_failed:
+                    continue
+                path = local_repair(occ, goal, self.fixed, self.obstacles, t, radius, budget)
+                if path is None:
+                    self.repair_failed.add((t, radius))
+                    continue
+                if not path:
                     continue
                 self._do_walk(path)
-                self.unblock_budget -= 1
+                self.repair_failed = set()
                 return True
         return False
 
 
-def _by_distance_to(cells: list[Coord], targets: list[Coord]) -> list[Coord]:
-    """``cells`` ordered by hex distance to their nearest target."""
-    if not cells or not targets:
-        return cells
-    d = distance_matrix(cells, targets).min(axis=1)
-    return [cells[i] for i in np.lexsort((np.arange(len(cells)), d))]
+def local_repair(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set[Coord],
+                 target: Coord, radius: int, budget: int) -> Path | None:
+    """Best-first search for a short sequence of rotations, inside a window of ``radius``
+    around ``target``, that fills a blocked void at ``target`` (or empties a trapped
+    electron's cell) while every settled goal cell of the window stays occupied, except
+    at most one on the surface.
+
+    This digs a pocket open and closes it again behind the new module: the vacancy
+    moves out to the surface, where relays can fill it. The rest of the structure stays
+    still, so connectivity is checked on the whole of it.
+    """
+    tx, ty = target
+    window = {(tx + dx, ty + dy) for dx in range(-radius, radius + 1)
+              for dy in range(-radius, radius + 1) if abs(dx) + abs(dy) + abs(dx + dy) <= 2 * radius}
+    outside = occ - window
+    start = frozenset(occ & window)
+    keep = start & goal
+    fill = target not in occ
+    surface = {c for c in keep if c != fixed and c != target
+               and any(n not in occ and n not in goal for n in neighbours_xy(c))}
+
+    def missing(conf: frozenset[Coord]) -> int:
+        miss = keep - conf
+        return len(miss) if len(miss) != 1 or not miss <= surface else 0
+
+    def score(conf: frozenset[Coord]) -> int:
+        return ((target not in conf) if fill else (target in conf)) + missing(conf)
+
+    tie = itertools.count()
+    parent: dict[frozenset[Coord], tuple[frozenset[Coord], Coord, MoveRule] | None] = {start: None}
+    cost = {start: 0}
+    heap = [(score(start), next(tie), start)]
+    expanded = 0
+    while heap:
+        _, _, conf = heapq.heappop(heap)
+        if score(conf) == 0:
+            path: Path = []
+            while (link := parent[conf]) is not None:
+                conf, m, rule = link
+                path.append((m, rule))
+            return path[::-1]
+        expanded += 1
+        if expanded > budget:
+            return None
+        full = outside | conf
+        g = cost[conf] + 1
+        for m in conf:
+            if m == fixed or not can_move(full, m, obstacles) or is_cut(full, m):
+                continue
+            x, y = m
+            for rule, (sx, sy), empties, (gx, gy) in RULE_OFFSETS:
+                d = (x + gx, y + gy)
+                if d not in window or d in full or d in obstacles or (x + sx, y + sy) not in full:
+                    continue
+                if any((x + ex, y + ey) in full or (x + ex, y + ey) in obstacles
+                       for ex, ey in empties):
+                    continue
+                nxt = frozenset((conf - {m}) | {d})
+                if g < cost.get(nxt, 1 << 30):
+                    cost[nxt] = g
+                    parent[nxt] = (conf, m, rule)
+                    # Weighted: the score counts cells, a repair needs several moves each.
+                    heapq.heappush(heap, (g + REPAIR_WEIGHT * score(nxt), next(tie), nxt))
+    return None
 
 
 def _finish_small(plan: Plan, occ: set[Coord], goal: set[Coord], fixed: Coord,
