@@ -92,6 +92,14 @@ class Clock(ABC):
     def delivered(self) -> None:
         """One expected sample has been posted."""
 
+    def post_delivered(self, fn: Callable[..., Any], args: tuple[Any, ...],
+                       order: tuple[float, int]) -> None:
+        """Thread-safe: ``post`` an expected sample's handler and count it as delivered."""
+        try:
+            self.post(fn, *args, order=order)
+        finally:
+            self.delivered()
+
     # -- running ----------------------------------------------------------------------------
     def stop(self) -> None:
         with self._lock:
@@ -153,6 +161,14 @@ class VirtualClock(Clock):
             if self._in_flight <= 0:
                 self._lock.notify_all()
 
+    def post_delivered(self, fn: Callable[..., Any], args: tuple[Any, ...],
+                       order: tuple[float, int]) -> None:
+        with self._lock:  # one lock round trip for both
+            self._inbox.append((order, fn, args))
+            self._in_flight -= 1
+            if self._in_flight <= 0:
+                self._lock.notify_all()
+
     def _settle(self) -> None:
         """Wait for every sample in flight, then handle the inbox in publish order."""
         while True:
@@ -181,25 +197,33 @@ class VirtualClock(Clock):
             timeout_s: float | None = None) -> None:
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         self._stopped = False
+        heap = self._heap
+        pop = heapq.heappop
         while True:
-            self._settle()
+            while heap and heap[0][2].cancelled:
+                pop(heap)
+            if not heap or heap[0][0] > self._now:
+                # Time is about to move on: first every sample published so far is delivered
+                # and handled (in publish order); its handlers may add work at this instant.
+                # Timers due now run first, so one barrier covers everything published now.
+                if self._in_flight > 0 or self._inbox:
+                    self._settle()
+                    continue
             if self._stopped or (until is not None and until()):
+                self._settle()
                 return
             if deadline is not None and time.monotonic() > deadline:
                 raise ClockError(f"virtual run did not finish within {timeout_s} wall seconds")
-            with self._lock:
-                while self._heap and self._heap[0][2].cancelled:
-                    heapq.heappop(self._heap)
-                if not self._heap:
-                    if until_ns is not None:
-                        self._now = max(self._now, until_ns)
-                    return
-                t = self._heap[0][0]
-                if until_ns is not None and t > until_ns:
-                    self._now = until_ns
-                    return
-                _, _, timer = heapq.heappop(self._heap)
-                self._now = t
+            if not heap:
+                if until_ns is not None:
+                    self._now = max(self._now, until_ns)
+                return
+            t = heap[0][0]
+            if until_ns is not None and t > until_ns:
+                self._now = until_ns
+                return
+            timer = pop(heap)[2]
+            self._now = t
             self.events_run += 1
             self._fire(timer.fn, timer.args)
 

@@ -36,6 +36,15 @@ class Framer:
         self._noise_reason = ""
         self._max_noise = max_noise
         self._need = 1  # bytes the buffer must hold before matching is worth trying
+        # While waiting for more bytes: the templates still possible for the bytes at the head
+        # of the buffer, the longest complete one so far, and the position of the next byte.
+        # Matching is positional (a template that failed on a prefix fails on every extension;
+        # one that matched keeps its match), so each new byte is checked once per live template.
+        self._alive: list | None = None
+        self._best: tuple = (0, None)
+        self._at = 0
+        self._first = _first_byte_table(self.link)
+        self._first1 = _FIRST1[self.link]
 
     def feed(self, data: bytes | bytearray | int, t_ns: int | list[int] = 0) -> list[Timed]:
         """Add bytes (with one time for all, or one per byte) and return completed frames."""
@@ -43,12 +52,56 @@ class Framer:
             data = bytes([data & 0xFF])
         times = t_ns if isinstance(t_ns, list) else [t_ns] * len(data)
         out: list[Timed] = []
+        if len(data) > 1 and len(times) == len(data) and self._chunk(data, times, out):
+            return out
         for b, t in zip(data, times):
             self._buf.append(b)
             self._times.append(t)
             if len(self._buf) >= self._need:
                 self._scan(out, final=False)
         return out
+
+    def _chunk(self, data, times: list[int], out: list[Timed]) -> bool:
+        """Fast path for a chunk that ends inside or exactly at the end of one frame (the
+        common case: a UART write is a frame or part of one). Returns False, having changed
+        nothing, when the byte-by-byte path is needed (a frame or noise ends inside it)."""
+        buf = self._buf
+        if buf:
+            if self._alive is None or self._at != len(buf):
+                return False
+            cands, (best_len, best_tpl) = self._alive, self._best
+            whole = bytes(buf) + bytes(data)
+        else:
+            cands, best_len, best_tpl = self._first[data[0]], 0, None
+            whole = bytes(data)
+        n_all = len(whole)
+        still, full = [], False
+        for pat, tpl in cands:
+            m, n = match(tpl, whole)
+            if m is Match.OK:
+                if n == n_all:
+                    full = True
+                if n > best_len:
+                    best_len, best_tpl = n, tpl
+            elif m is Match.NEED:
+                still.append((pat, tpl))
+        # Byte by byte, a frame or noise is emitted at the first length where no template
+        # still needs more bytes; a template alive at the end was alive at every length before.
+        if not still and not full:
+            return False
+        buf += data
+        self._times += times
+        if still:
+            self._alive, self._best, self._at, self._need = still, (best_len, best_tpl), n_all, n_all + 1
+            return True
+        self._alive = None
+        self._noise_emit(out)
+        out.append(Timed(frame_from_template(self.link, best_tpl, whole), self._times[0],
+                         self._times[-1]))
+        buf.clear()
+        self._times.clear()
+        self._need = 1
+        return True
 
     def flush(self) -> list[Timed]:
         """End of stream (or a long silence): whatever is pending becomes frames or noise."""
@@ -66,18 +119,39 @@ class Framer:
 
     def _scan(self, out: list[Timed], final: bool) -> None:
         while self._buf:
-            best_len, best_tpl, need = 0, None, False
-            for tpl in self._grammar:
-                m, n = match(tpl, self._buf)
-                if m is Match.OK and n > best_len:
-                    best_len, best_tpl = n, tpl
-                elif m is Match.NEED:
-                    need = True
-            if need and not final:
+            buf = self._buf
+            p = len(buf) - 1
+            if self._alive is not None and self._at == p:
+                # one byte more than when we last waited: only check it, template by template
+                byte = buf[p]
+                best_len, best_tpl = self._best
+                still = []
+                for pat, tpl in self._alive:
+                    e = pat[p]
+                    if e < 0 or e == byte:
+                        if len(pat) == p + 1:
+                            if p + 1 > best_len:
+                                best_len, best_tpl = p + 1, tpl
+                        else:
+                            still.append((pat, tpl))
+            elif p == 0:  # a lone first byte: the table already knows
+                best_len, best_tpl, still = self._first1[buf[0]]
+            else:
+                best_len, best_tpl, still = 0, None, []
+                for pat, tpl in self._first[buf[0]]:
+                    m, n = match(tpl, buf)
+                    if m is Match.OK:
+                        if n > best_len:
+                            best_len, best_tpl = n, tpl
+                    elif m is Match.NEED:
+                        still.append((pat, tpl))
+            if still and not final:
                 # A longer frame may still complete: wait, unless a frame is already complete
                 # and every pending alternative is shorter (never the case in our grammars).
-                self._need = len(self._buf) + 1
+                self._need = len(buf) + 1
+                self._alive, self._best, self._at = still, (best_len, best_tpl), len(buf)
                 return
+            self._alive = None  # the head of the buffer moves on
             if best_tpl is None:
                 self._noise_add(1, explain(self.link, bytes(self._buf)) if not self._noise else "")
                 if len(self._noise) >= self._max_noise:
@@ -92,6 +166,7 @@ class Framer:
         self._need = 1
 
     def _noise_add(self, n: int, reason: str) -> None:
+        self._alive = None
         if not self._noise:
             self._noise_reason = reason
         self._noise += self._buf[:n]
@@ -105,6 +180,26 @@ class Framer:
                              self._noise_t[0], self._noise_t[-1]))
             self._noise.clear()
             self._noise_t.clear()
+
+
+_FIRST: dict[Link, list[tuple]] = {}
+_FIRST1: dict[Link, list[tuple]] = {}
+
+
+def _first_byte_table(link: Link) -> list[tuple]:
+    """For each possible first byte, the templates of ``link`` (in grammar order) that do not
+    fail on it, each with its pattern: the expected byte at each offset, -1 for a free byte."""
+    table = _FIRST.get(link)
+    if table is None:
+        pats = [(tuple(t.head) + (-1,) * t.n_any + tuple(t.tail), t) for t in GRAMMARS[link]]
+        table = _FIRST[link] = [tuple((pat, t) for pat, t in pats
+                                      if match(t, bytes([b]))[0] is not Match.FAIL)
+                                for b in range(256)]
+        # the result of scanning a one-byte buffer: (best length, best template, still possible)
+        _FIRST1[link] = [(1, next(t for pat, t in c if len(pat) == 1), [x for x in c if len(x[0]) > 1])
+                         if any(len(pat) == 1 for pat, _ in c) else (0, None, [x for x in c if len(x[0]) > 1])
+                         for c in table]
+    return table
 
 
 def frames(link: Link | str, data: bytes) -> list[Frame]:

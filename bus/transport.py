@@ -14,7 +14,7 @@ import zenoh
 
 from .clock import Clock
 from .codec import Frame
-from .envelope import Envelope
+from .envelope import SCHEMA_VERSION, Envelope
 from .keys import Keys
 from .session import SessionOptions, open_session
 
@@ -30,6 +30,8 @@ class Bus:
         self.session = session if session is not None else open_session(options)
         self._subs: list[tuple[zenoh.KeyExpr, Any]] = []
         self._match_cache: dict[str, int] = {}
+        self._exact: dict[str, int] = {}  # subscriptions to one key (canonical), by key
+        self._wild: list[zenoh.KeyExpr] = []  # subscriptions with wildcards
         self._publishers: dict[str, Any] = {}
         self._pub_order = itertools.count()
         self._seq: dict[str, int] = {}
@@ -44,8 +46,11 @@ class Bus:
     def _local_matches(self, key: str) -> int:
         n = self._match_cache.get(key)
         if n is None:
-            ke = zenoh.KeyExpr(key)
-            n = sum(1 for k, _ in self._subs if k.intersects(ke))
+            # a subscription without wildcards matches only its own key
+            n = self._exact.get(key, 0)
+            if self._wild:
+                ke = zenoh.KeyExpr(key)
+                n += sum(1 for k in self._wild if k.intersects(ke))
             self._match_cache[key] = n
         return n
 
@@ -62,7 +67,7 @@ class Bus:
         self.published += 1
 
     def put_json(self, key: str, obj: Any) -> None:
-        self.put(key, json.dumps(obj, separators=(",", ":")).encode())
+        self.put(key, _dumps(obj).encode())
 
     def next_seq(self, src: str) -> int:
         n = self._seq.get(src, 0)
@@ -74,7 +79,7 @@ class Bus:
         env = Envelope.of(frame, src=src, dst=dst,
                           sim_time_ns=self.clock.now_ns() if sim_time_ns is None else sim_time_ns,
                           wall_time_ns=self.clock.wall_ns(), seq=self.next_seq(src), **extra)
-        self.put(self.keys.frame(frame.link.value, src), env.to_json())
+        self.put(self.keys.frame(frame.link.value, src), _envelope_json(env))
         return env
 
     def event(self, src: str, kind: str, **fields: Any) -> None:
@@ -90,19 +95,23 @@ class Bus:
         token = self._token
 
         def on_sample(sample: zenoh.Sample) -> None:
-            att = sample.attachment.to_bytes() if sample.attachment is not None else b""
-            local = len(att) == 16 and att[:8] == token
+            att = sample.attachment
+            att = att.to_bytes() if att is not None else b""
             key = str(sample.key_expr)
             data = sample.payload.to_bytes()
-            try:
-                clock.post(handler, key, data,
-                           order=(float(int.from_bytes(att[8:], "big")), index) if local else None)
-            finally:
-                if local:
-                    clock.delivered()
+            if len(att) == 16 and att[:8] == token:
+                clock.post_delivered(handler, (key, data), (float(int.from_bytes(att[8:], "big")), index))
+            else:
+                clock.post(handler, key, data)
 
         sub = self.session.declare_subscriber(keyexpr, on_sample)
-        self._subs.append((zenoh.KeyExpr(keyexpr), sub))
+        ke = zenoh.KeyExpr(keyexpr)
+        self._subs.append((ke, sub))
+        canon = str(ke)
+        if "*" in canon or "$" in canon:
+            self._wild.append(ke)
+        else:
+            self._exact[canon] = self._exact.get(canon, 0) + 1
         self._match_cache.clear()
         return sub
 
@@ -120,3 +129,14 @@ class Bus:
                 pass
         if self._own_session:
             self.session.close()
+
+
+_dumps = json.JSONEncoder(separators=(",", ":")).encode
+
+
+def _envelope_json(e: Envelope) -> bytes:
+    """``Envelope.to_json()`` byte for byte (same keys, same order), without asdict's deep copies."""
+    return _dumps({"link": e.link, "src": e.src, "dst": e.dst, "raw": e.raw.hex(),
+                   "sim_time_ns": e.sim_time_ns, "wall_time_ns": e.wall_time_ns, "seq": e.seq,
+                   "kind": e.kind, "view": e.view, "first_byte_ns": e.first_byte_ns,
+                   "origin": e.origin, "channel": e.channel, "v": SCHEMA_VERSION}).encode()

@@ -7,11 +7,12 @@ state, and takes IR light from the bus (``ir/rx/m<id>``).
 
 from __future__ import annotations
 
+import json
 from typing import Callable
 
 from bus.codec import Link
 from bus.framer import Framer
-from bus.ir import IrReceiver, IrTransmitter
+from bus.ir import Burst, IrReceiver, IrTransmitter, cut_masks
 from bus.keys import board_endpoint, module_endpoint
 from bus.messages import Actuators
 from bus.pins import JOINT, LED_JOINT, LED_NEG, LED_POS, MAGNET_NEG, MAGNET_POS
@@ -24,8 +25,13 @@ from .profiles import Profile
 
 
 class VirtualModule:
-    def __init__(self, bus: Bus, module_id: int, profile: Profile, *, ir_baud: int = 300) -> None:
+    def __init__(self, bus: Bus, module_id: int, profile: Profile, *, ir_baud: int = 300,
+                 mux_cut: bool = False) -> None:
         self.bus = bus
+        # mux_cut: a multiplexer switch during an IR burst moves the rest of it to the new
+        # transceiver (docs/protocol.md, emulation notes). Off: a burst goes out whole on the
+        # transceiver selected when it was written.
+        self.mux_cut = mux_cut
         self.id = module_id
         self.name = module_endpoint(module_id)
         clock = bus.clock
@@ -45,12 +51,17 @@ class VirtualModule:
                                                      self.comm.name, "pc" if k == 0 else f"side{k}",
                                                      channel=k) for k in range(7)}
         self.comm.uart1.on_tx = self._ir_tx
+        # bursts still on the air: [burst, transceiver, timer of its end]; the multiplexer may
+        # move the rest of one to another transceiver (docs/protocol.md, emulation notes)
+        self._ir_flight: list[list] = []
+        self._ir_k = self.comm.ir_transceiver
         self._ir_in = IrReceiver(clock, self._ir_rx)
         for board in (self.ctrl, self.comm):
             board.on_ports = self._ports_changed
             for uart in (board.uart0, board.uart1):
                 uart.on_overrun = self._overrun(board, uart)
         self._actuators_pending = False
+        self._actuators_key = bus.keys.actuators(self.name)
         bus.subscribe(bus.keys.ir_rx(self.name), self._ir_in.on_message)
         bus.subscribe_json(f"{bus.keys.root}/world/switches/{self.name}", self._on_switches)
 
@@ -95,9 +106,56 @@ class VirtualModule:
         k = self.comm.ir_transceiver
         if k is None:
             return  # channel Y7 is not wired: the light goes nowhere
-        u = self.comm.uart1
-        self._ir_out.send(k, data, starts, u.byte_ns)
-        self._ir_frames[k](data, starts, u.byte_ns)
+        byte_ns = self.comm.uart1.byte_ns
+        if not self.mux_cut:
+            self._ir_out.send(k, data, starts, byte_ns)
+            self._ir_frames[k](data, starts, byte_ns)
+            return
+        self._ir_send(k, bytes(data), list(starts), byte_ns, None)
+
+    def _ir_send(self, k: int, data: bytes, starts: list[int], byte_ns: int,
+                 corrupt: list[bool] | None) -> None:
+        b = self._ir_out.send(k, data, starts, byte_ns, corrupt)
+        entry = [b, k, None]
+        entry[2] = self.bus.clock.call_at(starts[-1] + byte_ns, self._ir_sent, entry)
+        self._ir_flight.append(entry)
+
+    def _ir_sent(self, entry: list) -> None:
+        """A burst has gone out whole on its transceiver: its bytes are frames of that wire."""
+        self._ir_flight.remove(entry)
+        b: Burst = entry[0]
+        self._ir_frames[entry[1]](b.data, b.starts, b.byte_ns)
+
+    def _ir_switched(self, k: int | None) -> None:
+        """The multiplexer left the transceiver of the bursts on the air (CD4051: the UART's
+        line follows the selection at once). A byte being sent is cut: the old transceiver
+        got its first bits, the new one the rest, each sees idle (1) for the others, both
+        garbled. The bytes after it go out on the new transceiver (none on Y7)."""
+        now = self.bus.clock.now_ns()
+        for entry in list(self._ir_flight):
+            b: Burst = entry[0]
+            old = entry[1]
+            byte_ns, starts, data = b.byte_ns, b.starts, b.data
+            idx = next((i for i, s in enumerate(starts) if s + byte_ns > now), None)
+            if idx is None:
+                continue  # ends now: it went out whole
+            entry[2].cancel()
+            self._ir_flight.remove(entry)
+            partial = starts[idx] < now
+            before, after = cut_masks(starts[idx], byte_ns, now) if partial else (0, 0)
+            self._ir_out.cut(b, idx, after if partial else None, now)
+            sent = bytearray(data[:idx])
+            if partial:
+                sent.append(data[idx] | after)
+            if sent:
+                self._ir_frames[old](bytes(sent), starts[:len(sent)], byte_ns)
+            if k is not None:
+                rest = bytearray(data[idx:])
+                corrupt = [False] * len(rest)
+                if partial:
+                    rest[0] |= before
+                    corrupt[0] = True
+                self._ir_send(k, bytes(rest), starts[idx:], byte_ns, corrupt)
 
     def _ir_rx(self, transceiver: int, byte: int, start: int, corrupt: bool) -> None:
         if self.comm.accepts_ir(transceiver, start):
@@ -114,6 +172,12 @@ class VirtualModule:
         return on
 
     def _ports_changed(self, mcu: Mcu) -> None:
+        if self.mux_cut and mcu is self.comm:
+            k = self.comm.ir_transceiver
+            if k != self._ir_k:
+                self._ir_k = k
+                if self._ir_flight:
+                    self._ir_switched(k)
         if not self._actuators_pending:
             self._actuators_pending = True
             self.bus.clock.call_later(0, self._publish_actuators)
@@ -139,4 +203,13 @@ class VirtualModule:
 
     def _publish_actuators(self) -> None:
         self._actuators_pending = False
-        self.bus.put(self.bus.keys.actuators(self.name), self.actuators().to_json())
+        a = self.actuators()
+        # ``a.to_json()`` byte for byte (same keys and order), without asdict's deep copies
+        self.bus.put(self._actuators_key, _dumps({
+            "module": a.module, "sim_time_ns": a.sim_time_ns, "joints_open": a.joints_open,
+            "magnets": a.magnets, "led_pos": a.led_pos, "led_neg": a.led_neg,
+            "led_joint": a.led_joint, "ir_channel": a.ir_channel, "ports": a.ports,
+            "type": Actuators.TOPIC}).encode())
+
+
+_dumps = json.JSONEncoder(separators=(",", ":")).encode

@@ -22,7 +22,7 @@ import json
 import random
 from dataclasses import dataclass
 
-from bus.ir import Burst, garble_message
+from bus.ir import Air, Burst, cut_message, forwarded, garble_fixes
 from bus.keys import PC, WORLD, module_endpoint
 from bus.lattice import Cell, Side, body_to_global, global_to_body
 from bus.messages import Pose, WorldEvent
@@ -149,8 +149,22 @@ class World:
         return [(other.module, int(global_to_body(Side(g).facing, other.orientation)))]
 
     def _on_ir(self, key: str, payload: bytes) -> None:
-        from bus.ir import Air, forwarded, garble_fixes  # (kept local: this method's own helpers)
         d = json.loads(payload)
+        if d.get("type") == "cut":
+            # The transmitter's multiplexer switched mid-burst: on the old transceiver the rest of
+            # the burst never comes, and the byte being sent is garbled (docs/protocol.md).
+            data = bytes.fromhex(d["data"])
+            for dst, rx in self._receivers(d["src"], d["transceiver"]):
+                air = self._air.get((dst, rx))
+                value = None
+                if air is not None:
+                    value = air.cut(d["src"], d["burst"], data, d["starts"], d["byte_ns"],
+                                    d["index"], d["lost_mask"])
+                elif d["lost_mask"] is not None:
+                    value = data[d["index"]] | d["lost_mask"]
+                self.bus.put(self.bus.keys.ir_rx(dst),
+                             cut_message(d["src"], d["burst"], d["index"], value, dst=dst))
+            return
         src, n, data, starts, byte_ns = d["src"], d["burst"], bytes.fromhex(d["data"]), d["starts"], \
             d["byte_ns"]
         now = self.bus.clock.now_ns()
@@ -161,6 +175,8 @@ class World:
             if air is None:
                 air = self._air[(dst, rx)] = Air()
             values, corrupt, fixes, sources = air.collide(src, n, data, starts, byte_ns, now)
+            if True in (d.get("corrupt") or ()):  # sent garbled (cut by the transmitter's multiplexer)
+                corrupt = [a or b for a, b in zip(corrupt, d["corrupt"])]
             if self.ber:
                 for i in range(len(values)):
                     for bit in range(8):
