@@ -65,6 +65,7 @@ class IrReceiver:
         self.clock = clock
         self.deliver = deliver
         self._pending: dict[tuple[str, int], list[list[Any]]] = {}
+        self._line_busy: dict[int, int] = {}  # transceiver -> end of the last byte delivered
 
     def on_message(self, key: str, payload: bytes) -> None:
         d = json.loads(payload)
@@ -117,6 +118,11 @@ class IrReceiver:
         start, value, transceiver, bad, _ = entries[n]
         if n == len(entries) - 1:
             del self._pending[k]
+        # Two garbled bytes overlapping on one transceiver are one byte on the UART line:
+        # the first to complete carries the mixture, the other never forms a stop bit.
+        if bad and start < self._line_busy.get(transceiver, -1):
+            return
+        self._line_busy[transceiver] = self.clock.now_ns()
         self.deliver(transceiver, value, start, bad)
 
 

@@ -128,10 +128,6 @@ def test_two_modules_answering_at_once_collide_and_the_pc_gets_garbage(rigs):
                    for r in rig.pc.received[mark:])
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "IR medium: every burst that reaches a receiver is delivered in full, so two overlapping "
-    "transmissions put two bytes per byte time into one UART (the PC's framer sees each byte "
-    "twice) instead of one garbled byte; see the report of the world issue"))
 def test_overlapping_bytes_reach_the_receiver_once(rigs):
     """One transceiver, one UART: two lines that start at the same instant reach the PC as one
     line, the AND of both, byte for byte (here the POS lines and the ACKs of m1 and m2)."""
