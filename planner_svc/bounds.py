@@ -5,6 +5,25 @@ assignment of modules to goal cells by hex distance. With a metric cost there is
 optimal assignment that leaves every module already on a goal cell where it is
 (re-route through it by the triangle inequality), so only electrons (modules off the
 goal) and voids (empty goal cells) need assigning.
+
+Two families of random connected instances (start and goal independent, both
+containing the fixed cell (0,0)) serve the tests and the benchmark:
+
+* **Eden** (:func:`random_problem`, :func:`random_blob`): compact blobs grown by Eden
+  growth. They are hard for Table 4-3 (:mod:`planner_svc.rules`): a rotation needs the
+  goal and three swept cells free, so a cell with four or more occupied neighbours can
+  be neither entered nor left. A blob's interior is therefore frozen, a lone walker
+  cannot cross a notch of the surface (an empty cell with four occupied neighbours),
+  and a hole inside a thick region can only be filled by digging it open. The
+  ``complete`` planner solves 10-module instances but stalls on most of 100 and 1000.
+* **sparse** (:func:`random_sparse_problem`, :func:`random_sparse_tree`): random trees
+  in which no module has more than three occupied neighbours and no empty cell more
+  than two. Every leaf can rotate away and a walker fits between any two branches, so
+  surface walking works. (With empty cells allowed three occupied neighbours,
+  ``empty_max=3``, branches run one cell apart, the gap between them cannot be walked
+  -- a walker there would sweep an occupied cell -- and walkers are confined to short
+  stretches again: most 30-module instances stall.) The trees spread out (radius
+  about n/4), so bounds are large: about 2.5e5 moves for 1000 modules.
 """
 
 from __future__ import annotations
@@ -105,8 +124,63 @@ def random_blob(n: int, rng: random.Random, start: Coord = (0, 0),
 
 
 def random_problem(n: int, seed: int, name: str | None = None) -> Problem:
-    """Two independent random connected shapes of ``n`` modules sharing the fixed cell (0,0)."""
+    """Eden family: two independent Eden blobs (:func:`random_blob`) of ``n`` modules
+    sharing the fixed cell (0,0). Compact, so hard under Table 4-3 (module docstring)."""
     rng = random.Random(seed)
     initial = random_blob(n, rng)
     goal = random_blob(n, rng)
     return Problem.of(initial, goal, (0, 0), name=name or f"random-{n}-{seed}")
+
+
+#: Most occupied neighbours a module of a sparse shape may have.
+SPARSE_MAX_NEIGHBOURS = 3
+#: Most occupied neighbours an empty cell next to a sparse shape may have (2: no two
+#: branches run one cell apart, so a walker fits between them).
+SPARSE_MAX_EMPTY_NEIGHBOURS = 2
+
+
+def random_sparse_tree(n: int, rng: random.Random, start: Coord = (0, 0),
+                       empty_max: int = SPARSE_MAX_EMPTY_NEIGHBOURS) -> set[Coord]:
+    """A random tree of ``n`` cells grown from ``start`` ("sparse Eden" growth).
+
+    Eden growth that accepts a rim cell only when it touches exactly one occupied cell
+    (so the occupancy graph stays a tree) and when afterwards no module has more than
+    :data:`SPARSE_MAX_NEIGHBOURS` occupied neighbours and no empty cell more than
+    ``empty_max``. A rejected cell is never accepted later (counts only grow), so it is
+    dropped. With ``empty_max=3`` branches may run one cell apart: the trees are denser
+    but a walker cannot pass between such branches (see the module docstring).
+    """
+    cells: set[Coord] = set()
+    count: dict[Coord, int] = {}
+
+    def add(c: Coord) -> None:
+        cells.add(c)
+        for m in neighbours_xy(c):
+            count[m] = count.get(m, 0) + 1
+
+    add(start)
+    rim = list(neighbours_xy(start))
+    while len(cells) < n:
+        k = rng.randrange(len(rim))
+        rim[k], rim[-1] = rim[-1], rim[k]
+        c = rim.pop()
+        if c in cells or count.get(c, 0) != 1:
+            continue
+        if any(count.get(m, 0) >= (SPARSE_MAX_NEIGHBOURS if m in cells else empty_max)
+               for m in neighbours_xy(c)):
+            continue
+        add(c)
+        rim.extend(m for m in neighbours_xy(c) if m not in cells)
+    return cells
+
+
+def random_sparse_problem(n: int, seed: int, name: str | None = None,
+                          empty_max: int = SPARSE_MAX_EMPTY_NEIGHBOURS) -> Problem:
+    """Sparse family: two independent random trees (:func:`random_sparse_tree`) of ``n``
+    modules sharing the fixed cell (0,0); in each, no module has more than three
+    occupied neighbours and no empty cell more than ``empty_max`` (default two)."""
+    rng = random.Random(seed)
+    initial = random_sparse_tree(n, rng, empty_max=empty_max)
+    goal = random_sparse_tree(n, rng, empty_max=empty_max)
+    tag = "sparse" if empty_max == SPARSE_MAX_EMPTY_NEIGHBOURS else f"sparse{empty_max}"
+    return Problem.of(initial, goal, (0, 0), name=name or f"{tag}-{n}-{seed}")

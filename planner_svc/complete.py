@@ -1,7 +1,16 @@
 """``complete``: a heuristic planner for large fleets that always finishes.
 
 Modules are interchangeable, so only electrons (modules off the goal) need to move,
-each to some void (empty goal cell). Under Table 4-3 a lone walker cannot cross a
+each to some void (empty goal cell).
+
+Phase 1 (:class:`_AssignWalk`) pairs electrons with voids by the lower bound's own
+minimum-cost assignment and walks them alone (A* over the surface), shortest pairs
+first, an electron going to the nearest void it reaches when its own is out of reach.
+On sparse shapes (:func:`planner_svc.bounds.random_sparse_problem`) it finishes on its
+own. When it does not, the relay heuristic below runs from the start (it does better
+on compact shapes), and if that is stuck too, from where phase 1 stopped.
+
+Under Table 4-3 a lone walker cannot cross a
 notch of the surface (a free cell with four occupied neighbours: no rotation pivots
 across its mouth), so on a rough structure each module reaches only a short stretch
 of the surface. Material still flows by *relays*:
@@ -39,6 +48,9 @@ import heapq
 import itertools
 from collections import deque
 
+from bus.lattice import NEIGHBOUR_OFFSET, Cell, Side
+
+from .bounds import distance_matrix, min_cost_assignment
 from .plan import Plan, Problem
 from .rules import (RULE_OFFSETS, Coord, Move, MoveRule, find_move, hex_distance,
                     neighbours_xy, to_move, xy)
@@ -231,6 +243,205 @@ def goal_depth(goal: set[Coord]) -> dict[Coord, int]:
     return depth
 
 
+# --- phase 1: assigned walks ------------------------------------------------------------------
+#: Cells the bounded cut test may explore before it calls a module a cut vertex (safe:
+#: a module wrongly called a cut vertex only waits).
+CUT_LIMIT = 40
+#: A* expansions allowed per unit of hex distance (plus :data:`WALK_SLACK`) for one walk.
+WALK_FACTOR = 6
+WALK_SLACK = 60
+#: Walks after which an electron that could not go is tried again.
+RETRY_WALKS = 8
+#: Electrons that may look for their nearest void when no assigned walk is possible.
+NEAREST_TRIES = 20
+#: Fleets up to this size also try the relay heuristic when phase 1 succeeds, keeping
+#: the shorter plan.
+COMPARE_LIMIT = 30
+
+
+def is_cut_bounded(occ: set[Coord], c: Coord, limit: int = CUT_LIMIT) -> bool:
+    """:func:`is_cut`, but a search that explores more than ``limit`` cells answers True.
+
+    Conservative: True may be wrong (the module then only waits), False never is.
+    """
+    x, y = c
+    ring = [(x + dx, y + dy) in occ for dx, dy in _DIRS]
+    if sum(ring) <= 1 or sum(1 for i in range(6) if ring[i] and not ring[i - 1]) <= 1:
+        return False
+    nbrs = [(x + dx, y + dy) for (dx, dy), o in zip(_DIRS, ring) if o]
+    want = set(nbrs[1:])
+    seen = {c, nbrs[0]}
+    todo = deque([nbrs[0]])
+    while todo:
+        a, b = todo.popleft()
+        for dx, dy in _DIRS:
+            n = (a + dx, b + dy)
+            if n in occ and n not in seen:
+                seen.add(n)
+                want.discard(n)
+                if not want:
+                    return False
+                todo.append(n)
+        if len(seen) > limit:
+            return True
+    return True
+
+
+def astar_walk(rest: set[Coord], start: Coord, target: Coord, obstacles: set[Coord],
+               limit: int) -> Path | None:
+    """Shortest walk of a lone module from ``start`` to ``target`` over the still
+    structure ``rest`` (A* by hex distance; None after ``limit`` expansions)."""
+    tie = itertools.count()
+    came: dict[Coord, tuple[Coord, MoveRule] | None] = {start: None}
+    cost = {start: 0}
+    heap = [(hex_distance(start, target), next(tie), start)]
+    expanded = 0
+    while heap:
+        _, _, c = heapq.heappop(heap)
+        if c == target:
+            path: Path = []
+            while (step := came[c]) is not None:
+                path.append(step)
+                c = step[0]
+            return path[::-1]
+        expanded += 1
+        if expanded > limit:
+            return None
+        cx, cy = c
+        d = cost[c] + 1
+        for rule, (sx, sy), empties, (gx, gy) in RULE_OFFSETS:
+            g = (cx + gx, cy + gy)
+            if g in rest or g in obstacles or (cx + sx, cy + sy) not in rest:
+                continue
+            if d >= cost.get(g, 1 << 30):
+                continue
+            if any((cx + ex, cy + ey) in rest or (cx + ex, cy + ey) in obstacles
+                   for ex, ey in empties):
+                continue
+            cost[g] = d
+            came[g] = (c, rule)
+            heapq.heappush(heap, (d + hex_distance(g, target), next(tie), g))
+    return None
+
+
+_SIDE_RELEASE = tuple((off, side.facing.joints) for side, off in
+                      ((s, NEIGHBOUR_OFFSET[s]) for s in Side))
+_RULE_PARTS = {r: (so, go) for r, so, _, go in RULE_OFFSETS}
+
+
+def fast_move(rest: set[Coord], mobile: Coord, rule: MoveRule) -> Move:
+    """:func:`planner_svc.rules.to_move` for a walker at ``mobile`` over ``rest`` (the
+    structure without the walker), with the side tables precomputed: the same Move."""
+    (sx, sy), (gx, gy) = _RULE_PARTS[rule]
+    x, y = mobile
+    sub = (x + sx, y + sy)
+    release = tuple((Cell(x + dx, y + dy), j) for (dx, dy), joints in _SIDE_RELEASE
+                    if (x + dx, y + dy) in rest and (x + dx, y + dy) != sub for j in joints)
+    return Move(Cell(x, y), Cell(x + gx, y + gy), rule.joint, rule.direction, Cell(*sub),
+                release)
+
+
+class _AssignWalk:
+    """Phase 1: electrons walk alone to the voids the assignment bound gives them.
+
+    The minimum-cost assignment of electrons to voids by hex distance
+    (:func:`planner_svc.bounds.min_cost_assignment`, the lower bound's own) pairs them.
+    Each step takes the pairs by increasing distance and makes the first walk that is
+    possible now: the electron can leave (not the fixed module, has a rotation, not a
+    cut vertex by :func:`is_cut_bounded`), its void touches the rest and is
+    :func:`enterable`, and A* finds the walk within a budget proportional to the
+    distance. Any prefix of walks keeps the remaining pairs an optimal assignment of
+    what remains, so when the walks are about as long as the distances the plan is
+    near the bound. When no assigned walk is possible an electron walks to the nearest
+    void it reaches instead and the two pairs swap voids. The phase stops when neither
+    works; the relay heuristic carries on from there.
+    """
+
+    def __init__(self, plan: Plan, occ: set[Coord]) -> None:
+        p = plan.problem
+        self.plan = plan
+        self.occ = occ
+        self.goal = {xy(c) for c in p.goal}
+        self.fixed = xy(p.fixed)
+        self.obstacles = {xy(c) for c in p.obstacles}
+        self.retry: dict[Coord, int] = {}
+        self.walks = 0
+        electrons = sorted(self.occ - self.goal)
+        voids = sorted(self.goal - self.occ)
+        self.pair: dict[Coord, Coord] = {}
+        if electrons:
+            col, _ = min_cost_assignment(distance_matrix(electrons, voids))
+            self.pair = {e: voids[j] for e, j in zip(electrons, col)}
+
+    def run(self) -> None:
+        while self.pair:
+            if not (self._assigned_step(True) or self._nearest_step()
+                    or self._assigned_step(False)):
+                return
+
+    def _leaves(self, e: Coord) -> bool:
+        occ = self.occ
+        return (e != self.fixed and can_move(occ, e, self.obstacles)
+                and not is_cut_bounded(occ, e))
+
+    def _open(self, rest: set[Coord], v: Coord) -> bool:
+        return (any(n in rest for n in neighbours_xy(v)) and v not in rest
+                and enterable(rest, v, self.obstacles))
+
+    def _walk(self, e: Coord, path: Path, v: Coord) -> None:
+        occ, steps = self.occ, self.plan.steps
+        occ.discard(e)
+        for cell, rule in path:
+            steps.append([fast_move(occ, cell, rule)])
+        occ.add(v)
+        self.walks += 1
+        del self.pair[e]
+
+    def _assigned_step(self, use_memo: bool) -> bool:
+        moves = self.walks
+        pair = self.pair
+        for e in sorted(pair, key=lambda k: (hex_distance(k, pair[k]), k)):
+            if use_memo and self.retry.get(e, -1) > moves:
+                continue
+            v = pair[e]
+            if not self._leaves(e):
+                self.retry[e] = moves + RETRY_WALKS
+                continue
+            rest = self.occ - {e}
+            if self._open(rest, v):
+                path = astar_walk(rest, e, v, self.obstacles,
+                                  WALK_FACTOR * hex_distance(e, v) + WALK_SLACK)
+                if path:
+                    self._walk(e, path, v)
+                    return True
+            self.retry[e] = moves + RETRY_WALKS
+        return False
+
+    def _nearest_step(self) -> bool:
+        """Some electron walks to the nearest void it reaches; the pairs swap voids."""
+        pair = self.pair
+        owner = {v: e for e, v in pair.items()}
+        tried = 0
+        for e in sorted(pair, key=lambda k: (hex_distance(k, pair[k]), k)):
+            if tried >= NEAREST_TRIES:
+                break
+            if not self._leaves(e):
+                continue
+            tried += 1
+            rest = self.occ - {e}
+            path = walk(rest, e, set(owner), self.obstacles, limit=RELAY_LIMIT * 4)
+            if not path:
+                continue
+            cell, rule = path[-1]
+            gx, gy = _GOAL_OFFSET[rule]
+            v = (cell[0] + gx, cell[1] + gy)
+            other = owner[v]
+            pair[other], pair[e] = pair[e], v
+            self._walk(e, path, v)
+            return True
+        return False
+
+
 def plan_complete(plan: Plan, exact_limit: int = EXACT_LIMIT) -> None:
     """Fill ``plan`` (serial, one move per step); see the module docstring.
 
@@ -238,8 +449,27 @@ def plan_complete(plan: Plan, exact_limit: int = EXACT_LIMIT) -> None:
     (goal to initial) and plays that plan backwards, since every move is reversible.
     """
     p: Problem = plan.problem
-    forward = Plan(plan.planner, p)
-    _Heuristic(forward).run()
+    # Phase 1, assigned walks alone, solves sparse shapes quickly and near the bound. When
+    # it cannot finish, the relay heuristic from the start (better on compact shapes) is
+    # tried, then the relay heuristic carrying on from where phase 1 stopped.
+    first = Plan(plan.planner, p)
+    occ = {xy(c) for c in p.initial}
+    _AssignWalk(first, occ).run()
+    if occ == {xy(c) for c in p.goal}:
+        first.ok = True
+        forward = first
+        if len(p.goal) <= COMPARE_LIMIT:        # cheap at this size: keep the shorter
+            relay = Plan(plan.planner, p)
+            _Heuristic(relay).run()
+            if relay.ok and relay.moves < first.moves:
+                forward = relay
+    else:
+        forward = Plan(plan.planner, p)
+        _Heuristic(forward).run()
+        if not forward.ok:
+            _Heuristic(first, start=occ).run()
+            if first.ok:
+                forward = first
     if not forward.ok:
         backward = Plan(plan.planner, Problem(p.goal, p.initial, p.fixed, p.obstacles, p.name))
         _Heuristic(backward).run()
@@ -269,10 +499,11 @@ def reverse_steps(plan: Plan, problem: Problem) -> list[list[Move]]:
 class _Heuristic:
     """One forward run of the relay heuristic on ``plan.problem``."""
 
-    def __init__(self, plan: Plan, enclosed_bonus: float = ENCLOSED_BONUS) -> None:
+    def __init__(self, plan: Plan, enclosed_bonus: float = ENCLOSED_BONUS,
+                 start: set[Coord] | None = None) -> None:
         p = plan.problem
         self.plan = plan
-        self.occ = {xy(c) for c in p.initial}
+        self.occ = {xy(c) for c in p.initial} if start is None else set(start)
         self.goal = {xy(c) for c in p.goal}
         self.fixed = xy(p.fixed)
         self.obstacles = {xy(c) for c in p.obstacles}

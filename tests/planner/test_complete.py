@@ -6,10 +6,11 @@ import random
 import pytest
 
 from planner_svc import complete, planners
-from planner_svc.bounds import assignment_lower_bound, random_blob, random_problem
+from planner_svc.bounds import (assignment_lower_bound, random_blob, random_problem,
+                                random_sparse_problem, random_sparse_tree)
 from planner_svc.plan import Problem, validate
-from planner_svc.rules import (articulation_cells, find_move, is_connected, neighbours_xy,
-                               to_move)
+from planner_svc.rules import (articulation_cells, find_move, hex_distance, is_connected,
+                               neighbours_xy, to_move)
 
 
 def _blobs(count, sizes, seed=7):
@@ -131,3 +132,47 @@ def test_local_repair_moves_a_hole_to_the_surface():
         cur = (cur - {cell}) | {(mv.goal.x, mv.goal.y)}
     validate(steps, occ, None, (0, 0))
     assert hole in cur and len(goal - cur) <= 1
+
+
+# --- the sparse family (random trees, bounds.random_sparse_problem) -------------------------
+def test_sparse_trees_are_sparse_trees():
+    rng = random.Random(5)
+    for n in (10, 100, 400):
+        cells = random_sparse_tree(n, rng)
+        assert len(cells) == n and (0, 0) in cells and is_connected(cells)
+        edges = sum(n2 in cells for c in cells for n2 in neighbours_xy(c)) // 2
+        assert edges == n - 1                                   # a tree
+        for c in {m for c in cells for m in neighbours_xy(c)} | cells:
+            k = sum(m in cells for m in neighbours_xy(c))
+            assert k <= (3 if c in cells else 2), c
+
+
+def test_is_cut_bounded_never_misses_a_cut_vertex():
+    for cells in _blobs(30, [8, 20, 60]) + [random_sparse_tree(80, random.Random(s))
+                                             for s in range(5)]:
+        cut = articulation_cells(cells)
+        for c in cells:
+            if c in cut:
+                assert complete.is_cut_bounded(cells, c, limit=10)
+            assert complete.is_cut_bounded(cells, c, limit=10 ** 6) == (c in cut)
+
+
+def test_astar_walk_is_as_short_as_the_breadth_first_walk():
+    rng = random.Random(11)
+    for s in range(6):
+        cells = random_sparse_tree(40, random.Random(s))
+        leaves = [c for c in sorted(cells) if c != (0, 0) and not complete.is_cut(cells, c)
+                  and complete.can_move(cells, c, set())]
+        m = rng.choice(leaves)
+        region = complete.bfs(cells - {m}, m, set())
+        for target in sorted(region)[:15]:
+            path = complete.astar_walk(cells - {m}, m, target, set(), limit=10 ** 5)
+            assert path is not None and len(path) == region[target][0]
+
+
+# Measured on these seeds: 10 modules <= 2.0x the bound, 30 modules <= 2.6x, 100 <= 2.5x.
+@pytest.mark.parametrize("n,seed", [(10, s) for s in range(8)] + [(30, s) for s in range(6)]
+                         + [(100, 2)])
+def test_sparse_instances_reach_the_goal(n, seed):
+    plan = _check(random_sparse_problem(n, seed))
+    assert plan.moves <= 3 * assignment_lower_bound(plan.problem.initial, plan.problem.goal)
