@@ -129,10 +129,11 @@ class PlannerService:
             return
         planner = planners.get(self.planner_name)
         self.view = self.bringup.run(since_ns)
-        if self.scenario.profile == "thesis-2009" and len(self.view.modules) > 2:
+        if self.scenario.profile == "thesis-2009":
             raise BringUpError("thesis-2009 modules have no addressing: every module executes "
-                               "every frame, so only a single mobile/substrate pair can be "
-                               "driven; use the v2 profile for larger fleets")
+                               "every frame and Ref makes every listener a reference, so a "
+                               "planner cannot drive one move at a time; use the v2 profile, or "
+                               "a script:<file> planner (the thesis's own way, one frame at a time)")
         initial = self.view.cells()
         if initial != frozenset(self.scenario.initial):
             self.say("note: the localized configuration differs from the scenario's: "
