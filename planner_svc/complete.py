@@ -87,21 +87,18 @@ _DIRS: tuple[Coord, ...] = ((-1, 1), (0, 1), (1, 0), (1, -1), (0, -1), (-1, 0))
 
 
 # --- connectivity ------------------------------------------------------------------------
-def is_cut(occ: set[Coord], c: Coord) -> bool:
+def is_cut(occ: set[Coord], c: Coord, limit: int | None = None) -> bool:
     """Whether removing the module at ``c`` disconnects ``occ``.
 
     Local test first: if the occupied neighbours of ``c`` form one contiguous arc they
     stay connected to each other around ``c``, so the rest stays connected. Otherwise
     a breadth-first search from one neighbour must reach the others without ``c``.
+    With ``limit``, a search that explores more than ``limit`` cells answers True:
+    conservative (True may be wrong, the module then only waits; False never is).
     """
     x, y = c
     ring = [(x + dx, y + dy) in occ for dx, dy in _DIRS]
-    n_occ = sum(ring)
-    if n_occ <= 1:
-        return False
-    # Count the starts of occupied runs around the ring.
-    runs = sum(1 for i in range(6) if ring[i] and not ring[i - 1])
-    if runs <= 1:
+    if sum(ring) <= 1 or sum(1 for i in range(6) if ring[i] and not ring[i - 1]) <= 1:
         return False
     nbrs = [(x + dx, y + dy) for (dx, dy), o in zip(_DIRS, ring) if o]
     want = set(nbrs[1:])
@@ -117,6 +114,8 @@ def is_cut(occ: set[Coord], c: Coord) -> bool:
                 if not want:
                     return False
                 todo.append(n)
+        if limit is not None and len(seen) > limit:
+            return True
     return True
 
 
@@ -260,31 +259,8 @@ COMPARE_LIMIT = 30
 
 
 def is_cut_bounded(occ: set[Coord], c: Coord, limit: int = CUT_LIMIT) -> bool:
-    """:func:`is_cut`, but a search that explores more than ``limit`` cells answers True.
-
-    Conservative: True may be wrong (the module then only waits), False never is.
-    """
-    x, y = c
-    ring = [(x + dx, y + dy) in occ for dx, dy in _DIRS]
-    if sum(ring) <= 1 or sum(1 for i in range(6) if ring[i] and not ring[i - 1]) <= 1:
-        return False
-    nbrs = [(x + dx, y + dy) for (dx, dy), o in zip(_DIRS, ring) if o]
-    want = set(nbrs[1:])
-    seen = {c, nbrs[0]}
-    todo = deque([nbrs[0]])
-    while todo:
-        a, b = todo.popleft()
-        for dx, dy in _DIRS:
-            n = (a + dx, b + dy)
-            if n in occ and n not in seen:
-                seen.add(n)
-                want.discard(n)
-                if not want:
-                    return False
-                todo.append(n)
-        if len(seen) > limit:
-            return True
-    return True
+    """:func:`is_cut` with a search limit (conservative: see there)."""
+    return is_cut(occ, c, limit)
 
 
 def astar_walk(rest: set[Coord], start: Coord, target: Coord, obstacles: set[Coord],
