@@ -37,6 +37,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     if args.list:
         for name in planners.names():
             print(f"{name:16} {planners.PLANNERS[name].description}")
+        print(f"{'script:<file>':16} {planners.SCRIPT_DESCRIPTION}")
         return 0
     if not args.scenario:
         raise UsageError("give a scenario (see 'hexbench scenarios') or --list")

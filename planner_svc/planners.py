@@ -1,9 +1,9 @@
 """Planners behind one interface, and their registry.
 
 ``get(name).plan(problem_or_scenario) -> Plan``. Names: ``thesis-serial``,
-``thesis-parallel``, ``exact``, ``complete``. A ``script:<file>`` name is reserved
-for replaying a hand-written plan (not implemented here): :func:`get` recognises
-the prefix and says so.
+``thesis-parallel``, ``exact``, ``complete``. ``script:<file>`` planners are not
+planners of this kind: they drive a fleet frame by frame (:mod:`planner_svc.script`,
+run by ``hexbench run``), so :func:`get` refuses them with that explanation.
 """
 
 from __future__ import annotations
@@ -161,8 +161,10 @@ PLANNERS: dict[str, FunctionPlanner] = {
     )
 }
 
-#: Prefix reserved for a planner that replays a plan file (another package adds it).
+#: Prefix of the script planners (:mod:`planner_svc.script`).
 SCRIPT_PREFIX = "script:"
+SCRIPT_DESCRIPTION = ("one PC action per line (send, select, wait, expect) against a fleet: "
+                      "hexbench run <scenario> --planner script:<file>")
 
 
 def names() -> list[str]:
@@ -174,6 +176,7 @@ def get(name: str) -> Planner:
     if name in PLANNERS:
         return PLANNERS[name]
     if name.startswith(SCRIPT_PREFIX):
-        raise UnknownPlanner(f"planner {name!r}: '{SCRIPT_PREFIX}<file>' planners are not "
-                             "available yet")
+        raise UnknownPlanner(f"planner {name!r}: a script drives a fleet frame by frame and "
+                             "makes no offline plan; run it with 'hexbench run <scenario> "
+                             f"--planner {name}'")
     raise UnknownPlanner(f"unknown planner {name!r}; planners: {', '.join(PLANNERS)}")

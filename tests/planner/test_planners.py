@@ -79,7 +79,7 @@ def test_registry_and_unknown_names():
 def test_cli_list_and_plan(capsys, tmp_path):
     assert main(["plan", "--list"]) == 0
     out = capsys.readouterr().out.splitlines()
-    assert [line.split()[0] for line in out] == planners.names()
+    assert [line.split()[0] for line in out] == planners.names() + ["script:<file>"]
     png = tmp_path / "plan.png"
     assert main(["plan", "thesis-6", "--planner", "thesis-parallel", "--png", str(png)]) == 0
     out = capsys.readouterr().out
