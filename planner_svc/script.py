@@ -46,6 +46,16 @@ def _int(v: str) -> int:
     return int(v, 0)
 
 
+def _value(v: str) -> object:
+    """A field value of ``expect``: integers (also 0x..), true/false, else the text."""
+    if v.lower() in ("true", "false"):
+        return v.lower() == "true"
+    try:
+        return int(v, 0)
+    except ValueError:
+        return v
+
+
 def parse_script(text: str, source: str = "<script>") -> list[Action]:
     out: list[Action] = []
     for n, raw in enumerate(text.splitlines(), 1):
@@ -117,7 +127,7 @@ def run_script(path: str, pc: PcEndpoint, bringup: BringUp, *,
                 if k == "timeout":
                     timeout = float(v)
                 else:
-                    fields[k] = _int(v) if v.lstrip("-").isdigit() or v.startswith("0x") else v
+                    fields[k] = _value(v)
             try:
                 r = pc.expect(kind, since=mark, timeout_s=timeout, **fields)
             except ExpectTimeout as exc:

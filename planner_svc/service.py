@@ -48,7 +48,7 @@ class RunResult:
     notes: list[str] = field(default_factory=list)
 
     def summary(self) -> str:
-        status = "goal reached" if self.ok else f"FAILED: {self.reason}"
+        status = (self.reason or "goal reached") if self.ok else f"FAILED: {self.reason}"
         return (f"{self.planner}: {status}; steps {self.steps}, moves {self.moves}"
                 f" (planned {self.planned_moves}), planning {self.planning_s * 1000:.1f} ms, "
                 f"run {self.sim_s:.1f} s sim / {self.wall_s:.1f} s wall, energy "
@@ -126,6 +126,10 @@ class PlannerService:
             run_script(self.planner_name[len(planners.SCRIPT_PREFIX):], self.pc, self.bringup,
                        say=self.say)
             result.ok, result.reason = True, "script finished"
+            if self.truth.present:
+                truth = {Cell(p.x, p.y) for p in self.truth.poses.values()}
+                at_goal = truth == set(self.scenario.goal)
+                result.reason += "; the world is " + ("at the goal" if at_goal else "not at the goal")
             return
         planner = planners.get(self.planner_name)
         self.view = self.bringup.run(since_ns)

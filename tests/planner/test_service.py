@@ -126,3 +126,10 @@ def test_planner_in_another_process_reaches_the_goal(tmp_path):
     finally:
         fleet.terminate()
         fleet.wait(timeout=30)
+
+
+def test_the_documented_example_script_moves_the_pair(capsys):
+    """docs/scripts/pair-rotate.txt: Ref, one Localize step, a v2 Move, Report confirms."""
+    code, out = run(capsys, "pair", "--planner", f"script:{ROOT / 'docs/scripts/pair-rotate.txt'}")
+    assert code == 0, out
+    assert "script finished; the world is at the goal" in out.strip().splitlines()[-1]
