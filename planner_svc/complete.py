@@ -3,12 +3,21 @@
 Modules are interchangeable, so only electrons (modules off the goal) need to move,
 each to some void (empty goal cell).
 
+Phase 0 (:class:`_FrontWalk`), on compact goals (:func:`compact`), fills the goal row by
+row outward from the cells already in place, each void by a lone walk (A* over the
+surface) of a peelable electron, chosen by walk length and the lower bound's own
+minimum-cost assignment; the row order keeps every void enterable and every free cell
+passable. It solves hex-convex shapes (:func:`planner_svc.bounds.random_convex_problem`)
+up to 1000 modules in a second or two, with plans about 1.1-1.5x the bound. When it
+finishes on a large fleet its plan is kept; otherwise the phases below start over.
+
 Phase 1 (:class:`_AssignWalk`) pairs electrons with voids by the lower bound's own
 minimum-cost assignment and walks them alone (A* over the surface), shortest pairs
 first, an electron going to the nearest void it reaches when its own is out of reach.
 On sparse shapes (:func:`planner_svc.bounds.random_sparse_problem`) it finishes on its
 own. When it does not, the relay heuristic below runs from the start (it does better
-on compact shapes), and if that is stuck too, from where phase 1 stopped.
+on compact shapes), and if that is stuck too, from where phase 1 stopped. Fleets of
+:data:`COMPARE_LIMIT` modules or fewer run every phase and keep the shortest plan.
 
 Under Table 4-3 a lone walker cannot cross a
 notch of the surface (a free cell with four occupied neighbours: no rotation pivots
@@ -50,7 +59,7 @@ from collections import deque
 
 from bus.lattice import NEIGHBOUR_OFFSET, Cell, Side
 
-from .bounds import distance_matrix, min_cost_assignment
+from .bounds import distance_matrix, electron_void_assignment, min_cost_assignment
 from .plan import Plan, Problem
 from .rules import (RULE_OFFSETS, Coord, Move, MoveRule, find_move, hex_distance,
                     neighbours_xy, to_move, xy)
@@ -346,7 +355,7 @@ class _AssignWalk:
         voids = sorted(self.goal - self.occ)
         self.pair: dict[Coord, Coord] = {}
         if electrons:
-            col, _ = min_cost_assignment(distance_matrix(electrons, voids))
+            col, _ = electron_void_assignment(electrons, voids)
             self.pair = {e: voids[j] for e, j in zip(electrons, col)}
 
     def run(self) -> None:
@@ -418,6 +427,291 @@ class _AssignWalk:
         return False
 
 
+# --- phase 0: front walks (smooth shapes) -------------------------------------------------------
+#: Hex radius around a filled void or emptied cell within which cached void checks are redone.
+FRONT_RADIUS = 5
+#: Layers ahead of the lowest unfilled one a void may be filled in.
+FRONT_SLACK = 1000
+#: Walks after which a (electron, void) walk that failed may be tried again.
+FRONT_RETRY = 4
+#: A* expansions per walk: :data:`WALK_FACTOR` per unit of hex distance plus this.
+FRONT_WALK_SLACK = 600
+#: Choose the electron for a void by walk length over the surface (else by hex distance).
+FRONT_SURFACE = True
+
+
+def _disk(c: Coord, r: int) -> list[Coord]:
+    x, y = c
+    return [(x + dx, y + dy) for dx in range(-r, r + 1)
+            for dy in range(max(-r, -dx - r), min(r, -dx + r) + 1)]
+
+
+class _FrontWalk:
+    """Phase 0: fill the goal row by row, each void by a lone walk of a peelable
+    electron.
+
+    Voids are layered by breadth-first distance inside the goal from the cells that
+    stay (those in both configurations, connected to the fixed module; layer 0; other
+    pieces of the overlap, possible when a partial row breaks convexity, would wall in
+    slots two cells wide that no lone walker can fill, so their modules count as
+    electrons and their cells as voids). A *row* is a connected piece of one layer. A
+    void may be filled when:
+
+    * every neighbour of a lower layer is filled (rows grow outward, no pocket forms);
+    * it touches a filled cell of its own row, or its row is still empty and it has the
+      most lower neighbours of the row (a concave corner: filled after a neighbour it
+      would have four occupied neighbours and could not be entered). One front per
+      row, so no two fronts meet in a notch;
+    * it is :func:`enterable` now, filling it leaves every nearby void that the settled
+      cells let be entered enterable, and no free cell outside the goal next to it
+      becomes a notch (a walker could not pass it: this happens where a growing row
+      meets electrons at a concave angle; it clears when they leave).
+
+    When no void qualifies the last rule, then the one-front rule, is dropped until a
+    walk is made. For the first void that qualifies (by layer, then hex distance to its
+    assigned electron), a breadth-first search from the void gives walk lengths to all
+    movable electrons (moves are reversible); the electron taken is the one whose walk
+    plus the change of the assignment's cost when it swaps partners with the void's
+    electron is least (the assignment, the lower bound's own, stays near optimal and
+    walks near their hex distance). The walk itself is A* by hex distance over the
+    surface. Movable electrons (not fixed, with a rotation) are tracked incrementally:
+    a rotation depends only on cells within distance two of the mobile, so only those
+    around the two changed cells are rechecked; the (bounded) cut test runs only for
+    the candidates about to walk.
+    """
+
+    def __init__(self, plan: Plan, occ: set[Coord]) -> None:
+        p = plan.problem
+        self.plan = plan
+        self.occ = occ
+        self.goal = {xy(c) for c in p.goal}
+        self.fixed = xy(p.fixed)
+        self.obstacles = {xy(c) for c in p.obstacles}
+        self.walks = 0
+        # The cells in both configurations that are connected (through such cells) to
+        # the fixed module stay; other pieces of the overlap (they exist when a partial
+        # row breaks convexity) would wall in narrow slots between them, which no lone
+        # walker can fill, so their modules move out and back like electrons.
+        both = self.goal & occ
+        base = {self.fixed} if self.fixed in both else set()
+        todo: deque[Coord] = deque(base)
+        while todo:
+            c = todo.popleft()
+            for n in neighbours_xy(c):
+                if n in both and n not in base:
+                    base.add(n)
+                    todo.append(n)
+        stray = both - base if base else set()
+        electrons = sorted((occ - self.goal) | stray)
+        voids = sorted((self.goal - occ) | stray)
+        self.pair: dict[Coord, Coord] = {}
+        if electrons:
+            if stray:                                   # nobody is paired with itself
+                cost = distance_matrix(electrons, voids)
+                vi = {v: j for j, v in enumerate(voids)}
+                for i, e in enumerate(electrons):
+                    if e in vi:
+                        cost[i, vi[e]] = 1 << 20
+                col, _ = min_cost_assignment(cost)
+            else:                                       # the lower bound's own
+                col, _ = electron_void_assignment(electrons, voids)
+            self.pair = {e: voids[j] for e, j in zip(electrons, col)}
+        self.owner = {v: e for e, v in self.pair.items()}
+        # Layers: breadth-first distance inside the goal from the cells that stay.
+        self.layer: dict[Coord, int] = {}
+        for c in base:
+            self.layer[c] = 0
+            todo.append(c)
+        while todo:
+            c = todo.popleft()
+            for n in neighbours_xy(c):
+                if n in self.goal and n not in self.layer:
+                    self.layer[n] = self.layer[c] + 1
+                    todo.append(n)
+        # Rows: connected pieces of one layer; each is filled from one seed outward.
+        self.comp: dict[Coord, int] = {}
+        self.comp_filled: list[int] = []       # cells filled per row
+        for v in voids:
+            if v in self.comp:
+                continue
+            k = len(self.comp_filled)
+            self.comp_filled.append(0)
+            self.comp[v] = k
+            todo = deque([v])
+            while todo:
+                c = todo.popleft()
+                for n in neighbours_xy(c):
+                    if (n not in self.comp and n in self.owner
+                            and self.layer[n] == self.layer[v]):
+                        self.comp[n] = k
+                        todo.append(n)
+        # Lower-layer neighbours of each void: a row's seed is one with the most (a
+        # concave corner of the row below: filled after its neighbours it would seal).
+        self.lower = {v: sum(self.layer.get(n, 1 << 30) < self.layer[v] for n in neighbours_xy(v))
+                      for v in voids}
+        self.comp_lower = [0] * len(self.comp_filled)
+        for v in voids:
+            k = self.comp[v]
+            self.comp_lower[k] = max(self.comp_lower[k], self.lower[v])
+        self.movable = {e for e in electrons if e != self.fixed
+                        and can_move(occ, e, self.obstacles)}
+        self.not_ready: set[Coord] = set()          # voids failing the local checks
+        self.failed: dict[tuple[Coord, Coord], int] = {}
+        self.relax = 0          # 0: all rules, 1: notches allowed, 2: also second fronts
+        self.slack = FRONT_SLACK
+        self.surface = FRONT_SURFACE
+
+    def run(self) -> bool:
+        while self.pair:
+            if not self._step():
+                if self.relax >= 2:
+                    return False
+                # Stuck: let notches form outside the goal, then let a row have a
+                # second front, rather than stop; back to the strict rules after a walk.
+                self.relax += 1
+                self.not_ready.clear()
+            elif self.relax:
+                self.relax = 0
+                self.not_ready.clear()
+        return True
+
+    def _ready(self, v: Coord) -> bool:
+        """Whether ``v`` may be filled now (see the class docstring)."""
+        occ, layer = self.occ, self.layer
+        if v in occ:
+            return False                    # a stray module has not left yet
+        lv = layer[v]
+        same = False
+        for n in neighbours_xy(v):
+            ln = layer.get(n)
+            if ln is None:
+                continue
+            if ln < lv and n not in occ:
+                return False                # a lower neighbour is still a void
+            if ln == lv and n in occ:
+                same = True
+        if not same:
+            k = self.comp[v]
+            if self.relax < 2 and (self.comp_filled[k] or self.lower[v] < self.comp_lower[k]):
+                return False                # one front per row, from its innermost corner
+        ob = self.obstacles
+        if not enterable(occ, v, ob):
+            return False
+        # No nearby void may become unenterable (judged on the settled cells: the
+        # electrons nearby will leave).
+        settled = {c for w in ring2(v) for c in _disk(w, 3) if c in occ and c in self.goal}
+        after = settled | {v}
+        if any(w in self.owner and not enterable(after, w, ob)
+               and enterable(settled, w, ob) for w in ring2(v)):
+            return False
+        if self.relax == 0:
+            # Nor may a free cell outside the goal become a notch (four or more occupied
+            # neighbours): walkers could not pass it, e.g. where a growing goal region
+            # meets electrons at a concave angle. It clears when the electrons leave.
+            for w in neighbours_xy(v):
+                if w not in occ and w not in self.goal:
+                    k = sum(n in occ for n in neighbours_xy(w))
+                    if k >= 3:
+                        return False
+        return True
+
+    def _electron_for(self, v: Coord) -> Coord | None:
+        """The partner of ``v`` if it can leave, else the cheapest swap."""
+        e0 = self.owner[v]
+        occ = self.occ
+        if e0 in self.movable and not is_cut_bounded(occ, e0):
+            return e0
+        base = hex_distance(e0, v)
+        cands = sorted(((hex_distance(e, v) + hex_distance(e0, self.pair[e])
+                         - base - hex_distance(e, self.pair[e]), e) for e in self.movable))
+        for _, e in cands[:12]:
+            if not is_cut_bounded(occ, e):
+                return e
+        return None
+
+    def _electron_by_surface(self, v: Coord) -> Coord | None:
+        """The movable electron that is cheapest for ``v`` counting its walk over the
+        surface: walk lengths from a breadth-first search from ``v`` (moves are
+        reversible), plus what swapping partners adds to the assignment."""
+        occ, pair = self.occ, self.pair
+        e0 = self.owner[v]
+        reach = bfs(occ, v, self.obstacles)
+        cands = []
+        for e in self.movable:
+            best = min((reach[f][0] for f in neighbours_xy(e) if f in reach), default=None)
+            if best is None:
+                continue
+            swap = 0 if e == e0 else (hex_distance(e0, pair[e]) - hex_distance(e, pair[e]))
+            cands.append((best + 1 + swap, e != e0, e))
+        cands.sort()
+        for _, _, e in cands[:12]:
+            if not is_cut_bounded(occ, e):
+                return e
+        return None
+
+    def _step(self) -> bool:
+        owner, layer = self.owner, self.layer
+        low = min(layer[v] for v in owner)
+        front = [v for v in owner if layer[v] <= low + self.slack and v not in self.not_ready]
+        front.sort(key=lambda v: (layer[v], hex_distance(v, owner[v]), v))
+        for v in front:
+            if not self._ready(v):
+                self.not_ready.add(v)
+                continue
+            e = self._electron_by_surface(v) if self.surface else self._electron_for(v)
+            if e is None:
+                continue
+            if self.failed.get((e, v), -1) > self.walks:
+                continue
+            occ = self.occ
+            occ.discard(e)
+            d = hex_distance(e, v)
+            path = astar_walk(occ, e, v, self.obstacles, WALK_FACTOR * d + FRONT_WALK_SLACK)
+            if not path:
+                occ.add(e)
+                self.failed[(e, v)] = self.walks + FRONT_RETRY
+                continue
+            self._walk(e, path, v)
+            return True
+        return False
+
+    def _walk(self, e: Coord, path: Path, v: Coord) -> None:
+        occ, steps = self.occ, self.plan.steps
+        for cell, rule in path:                    # occ is the rest (walker lifted out)
+            steps.append([fast_move(occ, cell, rule)])
+        occ.add(v)
+        self.walks += 1
+        self.comp_filled[self.comp[v]] += 1
+        # Swap partners so that e takes v (a no-op when v was e's own).
+        v0, e0 = self.pair.pop(e), self.owner.pop(v)
+        if e0 != e:
+            self.pair[e0] = v0
+            self.owner[v0] = e0
+        # Local updates: rotations and void checks depend on nearby cells only.
+        for c in _disk(e, 2) + _disk(v, 2):
+            if c in self.pair and c != self.fixed:
+                if can_move(occ, c, self.obstacles):
+                    self.movable.add(c)
+                else:
+                    self.movable.discard(c)
+        self.movable.discard(e)
+        for c in _disk(e, FRONT_RADIUS) + _disk(v, FRONT_RADIUS):
+            self.not_ready.discard(c)
+
+
+#: Mean number of occupied neighbours per goal cell from which a goal counts as compact
+#: (a tree has less than two; hex-convex shapes have five or more).
+COMPACT_DEGREE = 3.0
+
+
+def compact(goal: set[Coord]) -> bool:
+    """Whether ``goal`` is compact enough for front walks (:class:`_FrontWalk`): rows to
+    fill rather than branches to follow (on trees walks along the rows' order go far
+    around the branches; the assigned walks do better there)."""
+    links = sum(n in goal for c in goal for n in neighbours_xy(c))
+    return bool(goal) and links >= COMPACT_DEGREE * len(goal)
+
+
 def plan_complete(plan: Plan, exact_limit: int = EXACT_LIMIT) -> None:
     """Fill ``plan`` (serial, one move per step); see the module docstring.
 
@@ -425,6 +719,17 @@ def plan_complete(plan: Plan, exact_limit: int = EXACT_LIMIT) -> None:
     (goal to initial) and plays that plan backwards, since every move is reversible.
     """
     p: Problem = plan.problem
+    goal = {xy(c) for c in p.goal}
+    small = len(goal) <= COMPARE_LIMIT
+    # Phase 0, front walks, on compact goals (rows to fill); at scale it is kept when it
+    # finishes, small fleets keep the shortest plan of all phases.
+    front: Plan | None = None
+    if small or compact(goal):
+        front = Plan(plan.planner, p)
+        front.ok = _FrontWalk(front, {xy(c) for c in p.initial}).run()
+        if front.ok and not small:
+            plan.steps, plan.ok = front.steps, True
+            return
     # Phase 1, assigned walks alone, solves sparse shapes quickly and near the bound. When
     # it cannot finish, the relay heuristic from the start (better on compact shapes) is
     # tried, then the relay heuristic carrying on from where phase 1 stopped.
@@ -446,6 +751,8 @@ def plan_complete(plan: Plan, exact_limit: int = EXACT_LIMIT) -> None:
             _Heuristic(first, start=occ).run()
             if first.ok:
                 forward = first
+    if front is not None and front.ok and (not forward.ok or front.moves <= forward.moves):
+        forward = front
     if not forward.ok:
         backward = Plan(plan.planner, Problem(p.goal, p.initial, p.fixed, p.obstacles, p.name))
         _Heuristic(backward).run()
