@@ -67,6 +67,16 @@ class Actuators(Record):
 
 
 @dataclass
+class Switches(Record):
+    """``world/switches/<module>``: the optical switches, neighbour present per body side."""
+
+    TOPIC: ClassVar[str] = "switches"
+    module: str
+    present: list[bool]  # body sides 1..6
+    sim_time_ns: int
+
+
+@dataclass
 class WorldEvent(Record):
     """``world/event``: move started/completed/refused, faults, collisions. Errors are data."""
 

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from bus.ir import Air, Burst, cut_message, forwarded, garble_fixes
 from bus.keys import PC, WORLD, module_endpoint
 from bus.lattice import Cell, Side, body_to_global, global_to_body
-from bus.messages import Pose, WorldEvent
+from bus.messages import Pose, Switches, WorldEvent
 from bus.scenario import Scenario
 from bus.transport import Bus
 
@@ -128,9 +128,8 @@ class World:
 
     def publish_switches(self) -> None:
         for b in self.bodies.values():
-            self.bus.put_json(f"{self.bus.keys.root}/world/switches/{b.module}",
-                              {"module": b.module, "present": self.switches(b),
-                               "sim_time_ns": self.bus.clock.now_ns()})
+            self.bus.put(f"{self.bus.keys.root}/world/switches/{b.module}",
+                         Switches(b.module, self.switches(b), self.bus.clock.now_ns()).to_json())
 
     # -- the IR medium -------------------------------------------------------------------------------
     def _receivers(self, src: str, transceiver: int) -> list[tuple[str, int]]:

@@ -21,7 +21,7 @@ from typing import Any, Union
 
 from bus.envelope import ENVELOPE_SCHEMA, Envelope
 from bus.messages import (Actuators, Energy, PlannerProgress, PlannerState, Pose, Record, RunMeta,
-                          WorldEvent)
+                          Switches, WorldEvent)
 
 JSON_SCHEMA_DRAFT = "https://json-schema.org/draft/2020-12/schema"
 
@@ -133,6 +133,8 @@ _BY_PREFIX: tuple[tuple[str, str | None, ChannelKind], ...] = (
     ("world", "actuators", _record(Actuators)),
     ("world", "event", _record(WorldEvent)),
     ("world", "energy", _record(Energy)),
+    ("world", "switches", _record(Switches)),
+    ("world", "confirm", _record(Pose)),
     ("planner", "state", _record(PlannerState)),
     ("planner", "progress", _record(PlannerProgress)),
     ("meta", None, _record(RunMeta)),
