@@ -42,8 +42,22 @@ of the surface. Material still flows by *relays*:
    (or trapped electron) may move settled modules out and back
    (:func:`local_repair`), pushing the vacancy out to the surface.
 
+When the cheapest chain cannot be walked (e.g. it would repeat a configuration) the
+next cheapest is tried (:data:`RELAY_RETRIES`).
+
 If the heuristic is stuck it retries on the reverse problem (goal to initial, played
 backwards: every rotation is undone about the same vertex, sweeping the same cells).
+If that is stuck too, the relay heuristic runs once more as a last resort with *hole
+digging* (:meth:`_Heuristic._hole_step`): a hole (voids no movable electron reaches,
+e.g. enclosed by a frozen interior) or a walled-in electron is dug out by a peel planned
+on the structure with the hole filled -- movable modules (at most three neighbours, not
+cut vertices, also in the real structure) inside a hexagonal ball that reaches from
+beyond the nearest open surface to the hole walk one by one to parking cells outside
+the goal, until every hole cell has been peeled -- then played for real: the crater's
+peels forward, then the whole peel backwards (every move is reversible), with an
+electron (or a waiting crater module, leaving a surface void) taking each hole cell.
+Each walk is re-searched on the current structure; a fill that fails is rolled back.
+These plans are long (Eden blobs of 100 modules: 8-9x the bound) but reach the goal.
 If that fails too, small fleets (``exact_limit`` modules or fewer) fall back to
 :mod:`planner_svc.search` from the current configuration, which also proves
 unreachability (moves are reversible, so unreachable from there is unreachable from
@@ -77,6 +91,8 @@ DEPTH_BONUS = 0.5
 RELAY_PENALTY = 0.1
 #: Chain cost taken off per settled neighbour of the void (enclosed voids first).
 ENCLOSED_BONUS = 3.0
+#: Chains tried per relay step when the cheapest cannot be walked.
+RELAY_RETRIES = 8
 #: Cells a relay walk may explore.
 RELAY_LIMIT = 400
 #: Local repair windows (radius, expansions), tried in turn around a blocked void.
@@ -86,6 +102,22 @@ REPAIR_TARGETS = 4
 REPAIR_CALLS = 16
 #: Weight of the remaining defects against moves made in the local repair search.
 REPAIR_WEIGHT = 3
+#: Hole digging (last resort, :meth:`_Heuristic._hole_step`): planned fills per run,
+#: most voids per hole, peels per hole beyond its cells, least distance of a parking
+#: cell from the aimed hole cell, electrons tried per hole cell, modules tried per peel.
+HOLE_CALLS = 24
+HOLE_MAX = 12
+HOLE_PEELS = 80
+HOLE_PARK = 3
+HOLE_ELECTRONS = 8
+HOLE_TRY = 30
+#: The crater is a hexagonal ball centred HOLE_WIDTH cells beyond the open cell nearest
+#: to the aimed hole cell, reaching HOLE_DEEP cells past it; modules within
+#: HOLE_PARK_GAP of it may peel too (a flat row peels from its end), and parking cells
+#: are preferably farther.
+HOLE_WIDTH = 3
+HOLE_DEEP = 2
+HOLE_PARK_GAP = 3
 #: Move cap per module: relays that wander without filling voids must end.
 MAX_MOVES_PER_MODULE = 60
 
@@ -761,6 +793,15 @@ def plan_complete(plan: Plan, exact_limit: int = EXACT_LIMIT) -> None:
             plan.ok = True
             plan.notes.append("forward heuristic stuck; the reverse problem's plan played backwards")
             return
+    if not forward.ok:
+        # Last resort: the relays again, now digging holes open and filling them
+        # (:meth:`_Heuristic._hole_step`; long plans, but they reach the goal).
+        dug = Plan(plan.planner, p)
+        _Heuristic(dug, holes=True).run()
+        if dug.ok:
+            plan.steps, plan.ok = dug.steps, True
+            plan.notes.append("relays stuck; holes dug open and refilled")
+            return
     plan.steps, plan.ok, plan.reason = forward.steps, forward.ok, forward.reason
     if not forward.ok:
         occ = {xy(c) for c in forward.configurations()[-1]}
@@ -783,7 +824,7 @@ class _Heuristic:
     """One forward run of the relay heuristic on ``plan.problem``."""
 
     def __init__(self, plan: Plan, enclosed_bonus: float = ENCLOSED_BONUS,
-                 start: set[Coord] | None = None) -> None:
+                 start: set[Coord] | None = None, holes: bool = False) -> None:
         p = plan.problem
         self.plan = plan
         self.occ = {xy(c) for c in p.initial} if start is None else set(start)
@@ -797,6 +838,9 @@ class _Heuristic:
         #: (target, radius) pairs whose local repair failed since the last repair.
         self.repair_failed: set[tuple[Coord, int]] = set()
         self.repair_budget = REPAIR_CALLS
+        #: Planned hole fills left (:meth:`_hole_step`; only when ``holes``).
+        self.hole_budget = HOLE_CALLS if holes else 0
+        self.hole_failed: set[tuple[frozenset[Coord], frozenset[Coord]]] = set()
 
     def run(self) -> None:
         """Relay until the goal is reached or neither a relay nor an opening move exists."""
@@ -811,6 +855,8 @@ class _Heuristic:
                 self.stats["relay"] = self.stats.get("relay", 0) + 1
             elif self._repair_step():
                 self.stats["repair"] = self.stats.get("repair", 0) + 1
+            elif self._hole_step():
+                self.stats["hole"] = self.stats.get("hole", 0) + 1
             else:
                 self.plan.reason = (f"complete heuristic stuck after {self.plan.moves} moves "
                                     f"with {len(goal - self.occ)} voids left")
@@ -863,12 +909,10 @@ class _Heuristic:
         settled = occ & goal
         mobile = [k for k in sorted(occ) if self._mobile(k)]
         regions = {k: bfs(occ - {k}, k, obstacles) for k in mobile}
-        inf = float("inf")
-        dist: dict[Coord, float] = {}
-        nxt: dict[Coord, Coord] = {}            # module -> cell it walks to
         penalty: dict[Coord, float] = {}
+        direct: dict[Coord, list[tuple[float, Coord]]] = {}     # module -> (cost, void)
         for k in mobile:
-            best, where = inf, None
+            opts = []
             for c, (d, _, _) in regions[k].items():
                 if c in targets and c != k:
                     if c not in penalty:
@@ -877,11 +921,9 @@ class _Heuristic:
                                       - DEPTH_BONUS * self.depth.get(c, 0)
                                       - self.enclosed_bonus * sum(n in settled
                                                              for n in neighbours_xy(c)))
-                    cost = d + penalty[c]
-                    if cost < best:
-                        best, where = cost, c
-            if where is not None:
-                dist[k], nxt[k] = best, where
+                    opts.append((d + penalty[c], c))
+            if opts:
+                direct[k] = sorted(opts)
         # Who could take the cell of each settled mobile module once it has left.
         near: dict[Coord, set[Coord]] = {}
         for a, reg in regions.items():
@@ -907,6 +949,33 @@ class _Heuristic:
                 path = walk(rest - {a}, a, {b}, obstacles, limit=RELAY_LIMIT)
                 if path:
                     into.setdefault(b, []).append((a, len(path)))
+        # A chain whose hop cannot be made (e.g. it would repeat a configuration) is
+        # banned and the next cheapest chain tried, a few times.
+        banned: set[tuple[Coord, Coord]] = set()
+        for _ in range(RELAY_RETRIES):
+            hop = self._chain_walks(direct, into, banned)
+            if hop is None:
+                return True
+            if hop is False:
+                return False
+            banned.add(hop)
+        return False
+
+    def _chain_walks(self, direct: dict[Coord, list[tuple[float, Coord]]],
+                     into: dict[Coord, list[tuple[Coord, int]]],
+                     banned: set[tuple[Coord, Coord]]) -> tuple[Coord, Coord] | bool | None:
+        """Dijkstra for the cheapest chain avoiding ``banned`` hops, then its walks.
+        Returns None when a walk was made, False when there is no chain, else the hop
+        that could not be made (nothing moved)."""
+        occ, goal, obstacles = self.occ, self.goal, self.obstacles
+        inf = float("inf")
+        dist: dict[Coord, float] = {}
+        nxt: dict[Coord, Coord] = {}            # module -> cell it walks to
+        for k, opts in direct.items():
+            for cost, c in opts:
+                if (k, c) not in banned:
+                    dist[k], nxt[k] = cost, c
+                    break
         # Dijkstra backwards from the voids.
         heap = [(d, k) for k, d in dist.items()]
         heapq.heapify(heap)
@@ -917,6 +986,8 @@ class _Heuristic:
                 continue
             done.add(b)
             for a, w in into.get(b, ()):
+                if (a, b) in banned:
+                    continue
                 if d + w + RELAY_PENALTY < dist.get(a, inf):
                     dist[a] = d + w + RELAY_PENALTY
                     nxt[a] = b
@@ -946,7 +1017,229 @@ class _Heuristic:
             self._do_walk(path)
             self.seen.add(frozenset(self.occ))
             moved = True
-        return moved
+        if moved:
+            return None
+        return hops[-1]
+
+    def _hole_step(self) -> bool:
+        """Fill a hole (a cluster of voids no walker reaches) by a planned dig: see
+        :meth:`_fill_hole`. Each hole is tried once per configuration of voids."""
+        if self.hole_budget <= 0:
+            return False
+        occ, goal = self.occ, self.goal
+        voids = self.goal - occ
+        reach: set[Coord] = set()
+        for e in sorted(occ - goal):
+            if self._mobile(e):
+                reach |= bfs(occ - {e}, e, self.obstacles).keys()
+        done: set[Coord] = set()
+        for t in sorted(voids - reach, key=lambda v: (-self.depth.get(v, 0), v)):
+            if t in done:
+                continue
+            hole, todo = {t}, [t]
+            while todo:
+                for n in neighbours_xy(todo.pop()):
+                    if n in voids and n not in hole and n not in reach:
+                        hole.add(n)
+                        todo.append(n)
+            done |= hole
+            key = (frozenset(hole), frozenset(voids))
+            if key in self.hole_failed or len(hole) > HOLE_MAX:
+                continue
+            self.hole_budget -= 1
+            mark, saved, seen = len(self.plan.steps), set(occ), set(self.seen)
+            if self._fill_hole(hole):
+                return True
+            self.hole_failed.add(key)
+            del self.plan.steps[mark:]
+            occ.clear()
+            occ |= saved
+            self.seen = seen
+            if self.hole_budget <= 0:
+                return False
+        # Electrons walled in (or reaching no void): dig each out the same way.
+        for e in sorted(occ - goal, key=lambda c: (-self.depth.get(c, 0), c)):
+            if self._mobile(e) and not voids.isdisjoint(bfs(occ - {e}, e, self.obstacles)):
+                continue
+            key = (frozenset({e}), frozenset(voids))
+            if key in self.hole_failed:
+                continue
+            self.hole_budget -= 1
+            mark, saved, seen = len(self.plan.steps), set(occ), set(self.seen)
+            if self._fill_hole(set(), must={e}) and occ != saved:
+                return True
+            self.hole_failed.add(key)
+            del self.plan.steps[mark:]
+            occ.clear()
+            occ |= saved
+            self.seen = seen
+            if self.hole_budget <= 0:
+                return False
+        return False
+
+    def _fill_hole(self, hole: set[Coord], must: set[Coord] = frozenset()) -> bool:
+        """Dig ``hole`` open and fill it, as the reverse of a peel (also digs out the
+        electrons of ``must``, whose cells stay empty).
+
+        :meth:`_peel_plan` peels the structure with the hole filled. Then for real:
+        the crater's modules walk to their parking cells in that order, and the peel is
+        undone backwards: a crater module walks back from a parking cell into a goal
+        cell, a hole cell takes an electron that reaches it or else a waiting crater
+        module (the outermost crater cell then stays a void on the surface for the
+        relays). Each walk is searched on the current structure; False (the caller rolls
+        back) when one is impossible. Once the hole is filled a failed walk back ends the
+        fill early, with success: the relays refill the rest of the crater.
+        """
+        occ, goal, fixed = self.occ, self.goal, self.fixed
+        peels = self._peel_plan(hole, must=must)
+        if peels is None:
+            return False
+        for k, park in peels:                       # dig the crater
+            if k in hole:
+                continue
+            if not self._walk_to(k, park):
+                return False
+        # Crater goal cells in the order they were emptied (the first is the outermost,
+        # the last to be refilled); modules are interchangeable: any waiting one may
+        # go back to a cell, its own first.
+        back = [k for k, _ in peels if k not in hole and k in goal]
+        waiting: list[Coord] = []       # where the crater's modules wait (a parked
+        for k, park in peels:           # module may have been moved on, farther)
+            if k in hole:
+                continue
+            if k in waiting:
+                waiting.remove(k)
+            waiting.append(park)
+        lent: set[Coord] = set()        # crater cells left empty (their module filled
+        for k, park in reversed(peels):     # the hole); fill deepest first
+            if k not in hole:
+                if k in goal and k not in lent:
+                    order = ([park] if park in waiting else []) + waiting[::-1]
+                    for p in order:
+                        if self._walk_to(p, k):
+                            waiting.remove(p)
+                            break
+                    else:
+                        # The hole is filled: the relays refill the rest of the crater.
+                        return not (hole - self.occ)
+                continue
+            es = sorted((hex_distance(e, k), e) for e in occ - goal
+                        if e not in waiting and e != fixed)
+            if any(self._walk_to(e, k) for _, e in es[:HOLE_ELECTRONS]):
+                continue
+            # No electron reaches it: a waiting crater module fills it instead, and
+            # the outermost crater cell stays a void on the surface.
+            for p in waiting[::-1]:
+                if self._walk_to(p, k):
+                    waiting.remove(p)
+                    spare = [c for c in back if c not in lent]
+                    if spare:       # else it was an electron of the crater anyway
+                        lent.add(spare[0])
+                    break
+            else:
+                return False
+        return True
+
+    def _peel_plan(self, hole: set[Coord], sim: set[Coord] | None = None,
+                   must: set[Coord] = frozenset()) -> list[tuple[Coord, Coord]] | None:
+        """The peel of :meth:`_fill_hole`, simulated: ``(cell, parking cell)`` per
+        walk, or None; every cell of ``hole`` and ``must`` gets peeled. ``sim``
+        (default: the structure with the hole filled) is updated in place.
+
+        Aim at the cell still to peel nearest to an open free cell (at most two occupied
+        neighbours) and dig the crater (see :data:`HOLE_WIDTH`) outermost first: each
+        peel is a movable module (can rotate, not a cut vertex, both in ``sim`` and in
+        the real structure, which lacks the hole and its parked modules) walking to the
+        nearest parking cell outside the goal and the crater, preferably not next to
+        another parked module. Bounded by :data:`HOLE_PEELS`."""
+        occ, goal, ob, fixed = self.occ, self.goal, self.obstacles, self.fixed
+        if sim is None:
+            sim = occ | hole
+        left = set(hole) | set(must)
+        peels: list[tuple[Coord, Coord]] = []
+        parked: set[Coord] = set()
+        hole_parks: set[Coord] = set()
+        aim: Coord = (1 << 30, 0)       # not a hole cell: chosen in the first round
+        centre, span = aim, 0
+        for _ in range(HOLE_PEELS + len(hole)):
+            if not left:
+                break
+            if aim not in left:         # the next hole cell to dig to
+                rim = {n for c in sim for n in neighbours_xy(c)
+                       if n not in sim and n not in ob and n not in hole}
+                opens = [c for c in rim if sum(n in sim for n in neighbours_xy(c)) <= 2]
+                if not opens:
+                    return None
+                aim, mouth = min(((h, c) for h in (left & hole or left) for c in opens),
+                                 key=lambda hc: (hex_distance(*hc), hc))
+                # The crater: a hexagonal ball about a centre beyond the mouth, touching
+                # the aim (its walls open at 120 degrees or more, so modules peel).
+                ln = hex_distance(aim, mouth)
+                f = (ln + HOLE_WIDTH) / ln
+                centre = (round(aim[0] + (mouth[0] - aim[0]) * f),
+                          round(aim[1] + (mouth[1] - aim[1]) * f))
+                span = hex_distance(aim, centre) + HOLE_DEEP
+            # The crater is dug for real with the hole empty and without the hole's
+            # own modules: its peels must be possible in that structure too.
+            real = sim - hole - hole_parks
+            cands = []
+            for k in sim:
+                if k == fixed or k in hole_parks:
+                    continue
+                dk = hex_distance(k, centre)
+                # Outside the crater only near it: the end of a flat row peels first.
+                if k not in left and dk > span + HOLE_PARK_GAP:
+                    continue
+                if not can_move(sim, k, ob) or is_cut(sim, k):
+                    continue
+                if k not in hole and (not can_move(real, k, ob) or is_cut(real, k)):
+                    continue
+                cands.append((k not in left, dk > span, dk, k))
+            cands.sort()
+            moved = False
+            for *_, k in cands[:HOLE_TRY]:
+                reg = bfs(sim - {k}, k, ob)
+                if k not in hole:
+                    also = bfs(real - {k}, k, ob)
+                    reg = {c: v for c, v in reg.items() if c in also}
+                # Parking cells outside the crater, preferably not on its rim.
+                dk = hex_distance(k, centre)
+                # Apart from the other parked modules (each can leave again, in any
+                # order, and no notch forms between them).
+                parks = [(hex_distance(c, centre) <= span + HOLE_PARK_GAP,
+                          any(hex_distance(c, q) <= 2 for q in parked if q != k), reg[c][0], c)
+                         for c in reg if c not in goal and c not in hole
+                         and hex_distance(c, centre) > max(span, dk)
+                         and hex_distance(c, aim) >= HOLE_PARK]
+                if not parks:
+                    continue
+                park = min(parks)[-1]
+                sim.discard(k)
+                sim.add(park)
+                parked.discard(k)
+                parked.add(park)
+                if k in hole:
+                    hole_parks.add(park)
+                left.discard(k)
+                peels.append((k, park))
+                moved = True
+                break
+            if not moved:
+                return None
+        return None if left else peels
+
+    def _walk_to(self, m: Coord, target: Coord) -> bool:
+        """Walk the module at ``m`` alone to ``target`` if it can leave and reach it."""
+        occ, ob = self.occ, self.obstacles
+        if m not in occ or target in occ or m == self.fixed:
+            return False
+        if not can_move(occ, m, ob) or is_cut(occ, m):
+            return False
+        path = walk(occ - {m}, m, {target}, ob, limit=RELAY_LIMIT * 4)
+        if not path:
+            return False
+        self._do_walk(path)
+        return True
 
     def _repair_step(self) -> bool:
         """Fill a blocked void (or free a trapped electron) by a local search that may
