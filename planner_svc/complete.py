@@ -1046,17 +1046,9 @@ class _Heuristic:
             key = (frozenset(hole), frozenset(voids))
             if key in self.hole_failed or len(hole) > HOLE_MAX:
                 continue
-            self.hole_budget -= 1
-            mark, saved, seen = len(self.plan.steps), set(occ), set(self.seen)
-            if self._fill_hole(hole):
-                return True
-            self.hole_failed.add(key)
-            del self.plan.steps[mark:]
-            occ.clear()
-            occ |= saved
-            self.seen = seen
-            if self.hole_budget <= 0:
-                return False
+            done_now = self._try_dig(key, lambda: self._fill_hole(hole))
+            if done_now is not None:
+                return done_now
         # Electrons walled in (or reaching no void): dig each out the same way.
         for e in sorted(occ - goal, key=lambda c: (-self.depth.get(c, 0), c)):
             if self._mobile(e) and not voids.isdisjoint(bfs(occ - {e}, e, self.obstacles)):
@@ -1064,18 +1056,26 @@ class _Heuristic:
             key = (frozenset({e}), frozenset(voids))
             if key in self.hole_failed:
                 continue
-            self.hole_budget -= 1
-            mark, saved, seen = len(self.plan.steps), set(occ), set(self.seen)
-            if self._fill_hole(set(), must={e}) and occ != saved:
-                return True
-            self.hole_failed.add(key)
-            del self.plan.steps[mark:]
-            occ.clear()
-            occ |= saved
-            self.seen = seen
-            if self.hole_budget <= 0:
-                return False
+            before = set(occ)
+            done_now = self._try_dig(key, lambda: self._fill_hole(set(), must={e}) and occ != before)
+            if done_now is not None:
+                return done_now
         return False
+
+    def _try_dig(self, key, attempt) -> bool | None:
+        """Run one dig ``attempt``; roll the plan back if it fails. True: it worked;
+        False: the dig budget is spent; None: try the next hole."""
+        occ = self.occ
+        self.hole_budget -= 1
+        mark, saved, seen = len(self.plan.steps), set(occ), set(self.seen)
+        if attempt():
+            return True
+        self.hole_failed.add(key)
+        del self.plan.steps[mark:]
+        occ.clear()
+        occ |= saved
+        self.seen = seen
+        return False if self.hole_budget <= 0 else None
 
     def _fill_hole(self, hole: set[Coord], must: set[Coord] = frozenset()) -> bool:
         """Dig ``hole`` open and fill it, as the reverse of a peel (also digs out the
