@@ -190,16 +190,10 @@ def walk(rest: set[Coord], start: Coord, targets: set[Coord], obstacles: set[Coo
         if c in targets and c != start:
             end = c
             break
-        cx, cy = c
-        for rule, (sx, sy), empties, (gx, gy) in RULE_OFFSETS:
-            g = (cx + gx, cy + gy)
-            if g in came or g in rest or g in obstacles or (cx + sx, cy + sy) not in rest:
-                continue
-            if any((cx + ex, cy + ey) in rest or (cx + ex, cy + ey) in obstacles
-                   for ex, ey in empties):
-                continue
-            came[g] = (c, rule)
-            todo.append(g)
+        for rule, g in lone_steps(rest, c, obstacles):
+            if g not in came:
+                came[g] = (c, rule)
+                todo.append(g)
         if limit is not None and len(came) > limit:
             break
     if end is None:
@@ -211,6 +205,21 @@ def walk(rest: set[Coord], start: Coord, targets: set[Coord], obstacles: set[Coo
     return path[::-1]
 
 
+def lone_steps(rest: set[Coord], c: Coord, obstacles: set[Coord]):
+    """The legal rotations of a lone walker at ``c`` over the still structure ``rest``:
+    ``(rule, goal cell)`` for each Table 4-3 row whose substrate is there and whose goal
+    and sweep cells are free."""
+    cx, cy = c
+    for rule, (sx, sy), empties, (gx, gy) in RULE_OFFSETS:
+        g = (cx + gx, cy + gy)
+        if g in rest or g in obstacles or (cx + sx, cy + sy) not in rest:
+            continue
+        if any((cx + ex, cy + ey) in rest or (cx + ex, cy + ey) in obstacles
+               for ex, ey in empties):
+            continue
+        yield rule, g
+
+
 def bfs(rest: set[Coord], start: Coord, obstacles: set[Coord]
         ) -> dict[Coord, tuple[int, Coord | None, MoveRule | None]]:
     """Walk lengths from ``start`` to every cell a lone walker reaches over ``rest``:
@@ -219,17 +228,11 @@ def bfs(rest: set[Coord], start: Coord, obstacles: set[Coord]
     todo = deque([start])
     while todo:
         c = todo.popleft()
-        cx, cy = c
         d = out[c][0] + 1
-        for rule, (sx, sy), empties, (gx, gy) in RULE_OFFSETS:
-            g = (cx + gx, cy + gy)
-            if g in out or g in rest or g in obstacles or (cx + sx, cy + sy) not in rest:
-                continue
-            if any((cx + ex, cy + ey) in rest or (cx + ex, cy + ey) in obstacles
-                   for ex, ey in empties):
-                continue
-            out[g] = (d, c, rule)
-            todo.append(g)
+        for rule, g in lone_steps(rest, c, obstacles):
+            if g not in out:
+                out[g] = (d, c, rule)
+                todo.append(g)
     return out
 
 
