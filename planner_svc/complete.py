@@ -162,15 +162,7 @@ def is_cut(occ: set[Coord], c: Coord, limit: int | None = None) -> bool:
 
 def can_move(occ: set[Coord], c: Coord, obstacles: set[Coord]) -> bool:
     """Whether the module at ``c`` has at least one legal rotation (ignoring connectivity)."""
-    x, y = c
-    for _, (sx, sy), empties, (gx, gy) in RULE_OFFSETS:
-        g = (x + gx, y + gy)
-        if g in occ or g in obstacles or (x + sx, y + sy) not in occ:
-            continue
-        if any((x + ex, y + ey) in occ or (x + ex, y + ey) in obstacles for ex, ey in empties):
-            continue
-        return True
-    return False
+    return next(lone_steps(occ, c, obstacles), None) is not None
 
 
 # --- walks ---------------------------------------------------------------------------------
@@ -327,16 +319,9 @@ def astar_walk(rest: set[Coord], start: Coord, target: Coord, obstacles: set[Coo
         expanded += 1
         if expanded > limit:
             return None
-        cx, cy = c
         d = cost[c] + 1
-        for rule, (sx, sy), empties, (gx, gy) in RULE_OFFSETS:
-            g = (cx + gx, cy + gy)
-            if g in rest or g in obstacles or (cx + sx, cy + sy) not in rest:
-                continue
+        for rule, g in lone_steps(rest, c, obstacles):
             if d >= cost.get(g, 1 << 30):
-                continue
-            if any((cx + ex, cy + ey) in rest or (cx + ex, cy + ey) in obstacles
-                   for ex, ey in empties):
                 continue
             cost[g] = d
             came[g] = (c, rule)
@@ -1319,13 +1304,8 @@ def local_repair(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set
         for m in conf:
             if m == fixed or not can_move(full, m, obstacles) or is_cut(full, m):
                 continue
-            x, y = m
-            for rule, (sx, sy), empties, (gx, gy) in RULE_OFFSETS:
-                d = (x + gx, y + gy)
-                if d not in window or d in full or d in obstacles or (x + sx, y + sy) not in full:
-                    continue
-                if any((x + ex, y + ey) in full or (x + ex, y + ey) in obstacles
-                       for ex, ey in empties):
+            for rule, d in lone_steps(full, m, obstacles):  # full holds m: no checked cell is m
+                if d not in window:
                     continue
                 nxt = frozenset((conf - {m}) | {d})
                 if g < cost.get(nxt, 1 << 30):
