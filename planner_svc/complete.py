@@ -346,7 +346,20 @@ def fast_move(rest: set[Coord], mobile: Coord, rule: MoveRule) -> Move:
                 release)
 
 
-class _AssignWalk:
+class _Phase:
+    """What every phase works on: the plan it extends, the live occupancy (shared, moved
+    in place) and the problem's goal, fixed cell and obstacles as tuples."""
+
+    def __init__(self, plan: Plan, occ: set[Coord]) -> None:
+        p = plan.problem
+        self.plan = plan
+        self.occ = occ
+        self.goal = {xy(c) for c in p.goal}
+        self.fixed = xy(p.fixed)
+        self.obstacles = {xy(c) for c in p.obstacles}
+
+
+class _AssignWalk(_Phase):
     """Phase 1: electrons walk alone to the voids the assignment bound gives them.
 
     The minimum-cost assignment of electrons to voids by hex distance
@@ -363,12 +376,7 @@ class _AssignWalk:
     """
 
     def __init__(self, plan: Plan, occ: set[Coord]) -> None:
-        p = plan.problem
-        self.plan = plan
-        self.occ = occ
-        self.goal = {xy(c) for c in p.goal}
-        self.fixed = xy(p.fixed)
-        self.obstacles = {xy(c) for c in p.obstacles}
+        super().__init__(plan, occ)
         self.retry: dict[Coord, int] = {}
         self.walks = 0
         electrons = sorted(self.occ - self.goal)
@@ -466,7 +474,7 @@ def _disk(c: Coord, r: int) -> list[Coord]:
             for dy in range(max(-r, -dx - r), min(r, -dx + r) + 1)]
 
 
-class _FrontWalk:
+class _FrontWalk(_Phase):
     """Phase 0: fill the goal row by row, each void by a lone walk of a peelable
     electron.
 
@@ -501,12 +509,7 @@ class _FrontWalk:
     """
 
     def __init__(self, plan: Plan, occ: set[Coord]) -> None:
-        p = plan.problem
-        self.plan = plan
-        self.occ = occ
-        self.goal = {xy(c) for c in p.goal}
-        self.fixed = xy(p.fixed)
-        self.obstacles = {xy(c) for c in p.obstacles}
+        super().__init__(plan, occ)
         self.walks = 0
         # The cells in both configurations that are connected (through such cells) to
         # the fixed module stay; other pieces of the overlap (they exist when a partial
@@ -808,17 +811,13 @@ def reverse_steps(plan: Plan, problem: Problem) -> list[list[Move]]:
     return out
 
 
-class _Heuristic:
+class _Heuristic(_Phase):
     """One forward run of the relay heuristic on ``plan.problem``."""
 
     def __init__(self, plan: Plan, enclosed_bonus: float = ENCLOSED_BONUS,
                  start: set[Coord] | None = None, holes: bool = False) -> None:
-        p = plan.problem
-        self.plan = plan
-        self.occ = {xy(c) for c in p.initial} if start is None else set(start)
-        self.goal = {xy(c) for c in p.goal}
-        self.fixed = xy(p.fixed)
-        self.obstacles = {xy(c) for c in p.obstacles}
+        super().__init__(plan, {xy(c) for c in plan.problem.initial} if start is None
+                         else set(start))
         self.depth = goal_depth(self.goal)
         self.enclosed_bonus = enclosed_bonus
         self.seen = {frozenset(self.occ)}
