@@ -60,6 +60,11 @@ class Keys:
         self.frames = f"{self.root}/frame/**"
         self.world_event = f"{self.root}/world/event"
         self.world_energy = f"{self.root}/world/energy"
+        self.world_inject = f"{self.root}/world/inject"
+        self.world_sync = f"{self.root}/world/sync"
+        self.world_confirm = f"{self.root}/world/confirm"
+        self.poses = f"{self.root}/world/pose/*"
+        self.actuators_all = f"{self.root}/world/actuators/*"
         self.clock = f"{self.root}/clock"
         self.meta = f"{self.root}/meta"
         self.ir_tx_all = f"{self.root}/ir/tx/*"
@@ -82,6 +87,9 @@ class Keys:
 
     def actuators(self, module: str) -> str:
         return f"{self.root}/world/actuators/{module}"
+
+    def switches(self, module: str) -> str:
+        return f"{self.root}/world/switches/{module}"
 
     def planner(self, topic: str) -> str:
         return f"{self.root}/planner/{check_chunk(topic, 'topic')}"

@@ -46,8 +46,8 @@ class Mechanics:
         self._wake_at: int | None = None
         for f in faults or ():
             self.inject(f)
-        bus.subscribe(f"{bus.keys.root}/world/actuators/*", self._on_actuators)
-        bus.subscribe(f"{bus.keys.root}/world/inject", self._on_inject)
+        bus.subscribe(bus.keys.actuators_all, self._on_actuators)
+        bus.subscribe(bus.keys.world_inject, self._on_inject)
 
     # -- faults -------------------------------------------------------------------------------
     def inject(self, fault: ActuatorFault) -> None:

@@ -63,7 +63,7 @@ class VirtualModule:
         self._actuators_pending = False
         self._actuators_key = bus.keys.actuators(self.name)
         bus.subscribe(bus.keys.ir_rx(self.name), self._ir_in.on_message)
-        bus.subscribe_json(f"{bus.keys.root}/world/switches/{self.name}", self._on_switches)
+        bus.subscribe_json(bus.keys.switches(self.name), self._on_switches)
 
     def power_up(self) -> None:
         self.ctrl.start(self.ctrl.program())

@@ -58,8 +58,8 @@ class World:
         self._air: dict[tuple[str, int], list[list]] = {}
         self.collisions = 0
         bus.subscribe(bus.keys.ir_tx_all, self._on_ir)
-        bus.subscribe(f"{bus.keys.root}/world/sync", lambda k, p: self.start())
-        bus.subscribe(f"{bus.keys.root}/world/confirm", self._on_confirm)
+        bus.subscribe(bus.keys.world_sync, lambda k, p: self.start())
+        bus.subscribe(bus.keys.world_confirm, self._on_confirm)
         self.mechanics = Mechanics(bus, self.bodies, self.obstacles, self._moved,
                                    faults=list(scenario.faults))
 
@@ -128,7 +128,7 @@ class World:
 
     def publish_switches(self) -> None:
         for b in self.bodies.values():
-            self.bus.put(f"{self.bus.keys.root}/world/switches/{b.module}",
+            self.bus.put(self.bus.keys.switches(b.module),
                          Switches(b.module, self.switches(b), self.bus.clock.now_ns()).to_json())
 
     # -- the IR medium -------------------------------------------------------------------------------

@@ -59,11 +59,10 @@ class GroundTruth:
     energy_j: float = 0.0
 
     def __post_init__(self) -> None:
-        root = self.bus.keys.root
-        self.bus.subscribe(f"{root}/world/pose/*", self._pose)
-        self.bus.subscribe(f"{root}/world/event", self._event)
-        self.bus.subscribe_json(f"{root}/world/energy", self._energy)
-        self.bus.put_json(f"{root}/world/sync", {"from": "planner"})  # a late joiner asks
+        self.bus.subscribe(self.bus.keys.poses, self._pose)
+        self.bus.subscribe(self.bus.keys.world_event, self._event)
+        self.bus.subscribe_json(self.bus.keys.world_energy, self._energy)
+        self.bus.put_json(self.bus.keys.world_sync, {"from": "planner"})  # a late joiner asks
 
     def _pose(self, key: str, payload: bytes) -> None:
         p = Pose.from_json(payload)
@@ -117,7 +116,7 @@ class Executor:
                 f"{int(rule.joint)}, substrate m{sid} at {move.substrate})")
         real = mob.kind == "real"
         try:
-            self._wait_acks(mark, mid, sid, desc, move, required=real or not self.truth.present)
+            self._wait_acks(mark, mid, desc, move, required=real or not self.truth.present)
         finally:
             for ident, body_joint in releases:
                 if ident != mid:
@@ -145,7 +144,7 @@ class Executor:
             self.say(f"note: m{mob.id} is real and not localized: its move is confirmed by the "
                      "ACKs alone")
         name = f"m{mob.id}"
-        self.pc.bus.put(self.pc.bus.keys.root + "/world/confirm", Pose(
+        self.pc.bus.put(self.pc.bus.keys.world_confirm, Pose(
             name, mob.id, move.goal.x, move.goal.y, mob.orientation,
             self.pc.bus.clock.now_ns(), "real").to_json())
         if self.truth.present:  # the world takes the pose (or says why not) before we go on
@@ -175,7 +174,7 @@ class Executor:
             out.append((mid, int(Joint.of(s + 1 - mob.orientation))))
         return out
 
-    def _wait_acks(self, mark: int, mid: int, sid: int, desc: str, move: Move, *,
+    def _wait_acks(self, mark: int, mid: int, desc: str, move: Move, *,
                    required: bool) -> None:
         got: list[int] = []
         try:

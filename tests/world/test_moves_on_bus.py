@@ -169,7 +169,7 @@ def test_a_stuck_solenoid_on_the_mobile_leaves_it_latched():
         # CW about global joint j: the mobile's pin at vertex j+1 holds the substrate
         # (the pin at j is the hinge); its body joint is mi+1.
         stuck = (mi % 6) + 1
-        rig.bus.put_json(f"{rig.bus.keys.root}/world/inject", {"fault": f"m1.J{stuck}:closed"})
+        rig.bus.put_json(rig.bus.keys.world_inject, {"fault": f"m1.J{stuck}:closed"})
         rig.run_for(0.1)
         assert rig.events[-1].kind == "fault-injected"
         send_move(rig, rule, om, os_)
