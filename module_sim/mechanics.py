@@ -38,6 +38,7 @@ class Mechanics:
         self.params = params
         self.judge = MotionJudge([ModuleSpec(b.module, b.cell, b.orientation, b.fixed)
                                   for b in bodies.values()], obstacles, params)
+        self.modules = frozenset(bodies)
         self.meter = EnergyMeter()
         self.on_moved = on_moved
         self.faults: dict[str, list[ActuatorFault]] = {}
@@ -52,7 +53,7 @@ class Mechanics:
     # -- faults -------------------------------------------------------------------------------
     def inject(self, fault: ActuatorFault) -> None:
         """From now on the actuator behaves as ``fault`` says (re-applied to its current state)."""
-        if fault.module not in self._modules():
+        if fault.module not in self.modules:
             raise KeyError(f"fault {fault}: no module {fault.module!r} in this world")
         self.faults.setdefault(fault.module, []).append(fault)
         self.bus.put(self.bus.keys.world_event, WorldEvent(
@@ -68,13 +69,10 @@ class Mechanics:
         except (ValueError, KeyError) as exc:
             self.bus.event("world", "bad-injection", detail=str(exc), spec=spec)
 
-    def _modules(self) -> set[str]:
-        return set(self.judge.occupancy().values())
-
     # -- actuators in --------------------------------------------------------------------------
     def _on_actuators(self, key: str, payload: bytes) -> None:
         a = Actuators.from_json(payload)
-        if a.module not in self._modules():
+        if a.module not in self.modules:
             return  # a module the world does not hold (another fleet's stand-in, say)
         self._commanded[a.module] = (list(a.joints_open), list(a.magnets))
         self._feed(a.module, a.sim_time_ns, list(a.joints_open), list(a.magnets))

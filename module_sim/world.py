@@ -51,11 +51,11 @@ class World:
         for m in scenario.modules:
             name = module_endpoint(m.id)
             self.bodies[name] = Body(name, m.id, m.cell, m.orientation, m.kind, m.cell == scenario.fixed)
+        self._by_cell: dict[Cell, Body] = {b.cell: b for b in self.bodies.values()}
         self.obstacles = set(scenario.obstacles)
         self._rng = random.Random(scenario.seed)
         self.ber = scenario.bit_error_rate
-        # receiver (dst, transceiver) -> bytes in flight: [end, start, value, src, burst, index]
-        self._air: dict[tuple[str, int], list[list]] = {}
+        self._air: dict[tuple[str, int], Air] = {}  # receiver (dst, transceiver) -> bytes in flight
         self.collisions = 0
         bus.subscribe(bus.keys.ir_tx_all, self._on_ir)
         bus.subscribe(bus.keys.world_sync, lambda k, p: self.start())
@@ -67,8 +67,12 @@ class World:
     def _moved(self, move: MoveCompleted) -> None:
         """A rotation arrived: the body takes its new cell and orientation; the optical
         switches of everyone change."""
-        b = self.bodies[move.module]
-        b.cell, b.orientation = move.to_cell, move.orientation_after
+        self._place(self.bodies[move.module], move.to_cell, move.orientation_after)
+
+    def _place(self, b: Body, cell: Cell, orientation: int) -> None:
+        del self._by_cell[b.cell]
+        b.cell, b.orientation = cell, orientation % 6
+        self._by_cell[cell] = b
         self._publish_pose(b)
         self.publish_switches()
 
@@ -89,17 +93,11 @@ class World:
                 "fault", self.bus.clock.now_ns(), b.module, "confirm-refused",
                 {"detail": str(exc), "to": [p.x, p.y]}).to_json())
             return
-        b.cell, b.orientation = Cell(p.x, p.y), p.orientation % 6
         self.bus.put(self.bus.keys.world_event, WorldEvent(
             "move-confirmed", self.bus.clock.now_ns(), b.module, "location report",
             {"from": list(before[0]), "to": [p.x, p.y], "orientation_before": before[1],
-             "orientation_after": b.orientation, "kind": "real"}).to_json())
-        self._publish_pose(b)
-        self.publish_switches()
-
-    def occupancy(self) -> dict[Cell, str]:
-        """Cell -> module, the ground truth."""
-        return {b.cell: b.module for b in self.bodies.values()}
+             "orientation_after": p.orientation % 6, "kind": "real"}).to_json())
+        self._place(b, Cell(p.x, p.y), p.orientation)
 
     # -- ground truth out ----------------------------------------------------------------------
     def start(self) -> None:
@@ -115,15 +113,11 @@ class World:
                           self.bus.clock.now_ns(), b.kind, b.fixed).to_json())
 
     def at(self, cell: Cell) -> Body | None:
-        for b in self.bodies.values():
-            if b.cell == cell:
-                return b
-        return None
+        return self._by_cell.get(cell)
 
     def switches(self, body: Body) -> list[bool]:
         """Optical switches of a module, in its body frame."""
-        occupied = {b.cell for b in self.bodies.values()}
-        return [body.cell.neighbour(body_to_global(s, body.orientation)) in occupied
+        return [body.cell.neighbour(body_to_global(s, body.orientation)) in self._by_cell
                 for s in range(1, 7)]
 
     def publish_switches(self) -> None:
