@@ -29,10 +29,14 @@ class SessionOptions:
 
     @classmethod
     def from_args(cls, args: object) -> "SessionOptions":
-        return cls(mode=getattr(args, "mode", None) or "peer",
-                   connect=list(getattr(args, "connect", None) or []),
-                   listen=list(getattr(args, "listen", None) or []),
-                   isolated=bool(getattr(args, "isolated", False)))
+        """From ``add_arguments``' options. A run on the virtual clock (``args.clock``) is one
+        process: unless told where to connect or listen it is isolated, because samples
+        from other processes would break its determinism."""
+        connect = list(getattr(args, "connect", None) or [])
+        listen = list(getattr(args, "listen", None) or [])
+        virtual_alone = getattr(args, "clock", None) == "virtual" and not (connect or listen)
+        return cls(mode=getattr(args, "mode", None) or "peer", connect=connect, listen=listen,
+                   isolated=bool(getattr(args, "isolated", False)) or virtual_alone)
 
 
 def _config(mode: str, listen: list[str], connect: list[str]) -> zenoh.Config:

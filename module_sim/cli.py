@@ -50,10 +50,7 @@ def cmd_fleet(args: argparse.Namespace) -> int:
     if args.clock == "virtual" and args.seconds is None:
         raise UsageError("--clock virtual needs --seconds: nothing else can join a virtual run")
     clock = make_clock(args.clock)
-    opts = SessionOptions.from_args(args)
-    if args.clock == "virtual" and not (opts.connect or opts.listen):
-        opts.isolated = True
-    bus = Bus(clock, args.fleet, options=opts)
+    bus = Bus(clock, args.fleet, options=SessionOptions.from_args(args))
     try:
         fleet = Fleet(bus, sc)
         fleet.power_up()

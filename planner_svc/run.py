@@ -111,11 +111,8 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
         raise UsageError(f"scenario {scenario.name!r} has real modules "
                          f"({', '.join(f'm{m.id}' for m in real)}): real hardware runs on the wall "
                          "clock; use --clock wall")
-    opts = SessionOptions.from_args(args)
-    if args.clock == "virtual" and not (opts.connect or opts.listen):
-        opts.isolated = True  # a virtual run is one process; others would break determinism
     clock = make_clock(args.clock)
-    bus = Bus(clock, args.fleet, options=opts)
+    bus = Bus(clock, args.fleet, options=SessionOptions.from_args(args))
     recorder = None
     bridges: list = []
     try:
