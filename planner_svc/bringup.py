@@ -121,17 +121,14 @@ class BringUp:
                                       "report")
         virtual_or_real = {m.id: m.kind for m in self.scenario.modules}
         ref = self.scenario.fixed_module
-        for ident in sorted(virtual_or_real):
-            self.report(ident)  # every module answers: it is powered and addressable
+        # every module answers: it is powered and addressable
+        reports = {ident: self.report(ident) for ident in sorted(virtual_or_real)}
         self.select(ref.id)
         self.command(F.Ref, what=f"Ref(m{ref.id})")
-        reports = {ref.id: self.report(ref.id)}
+        reports[ref.id] = self.report(ref.id)
         n = len(virtual_or_real)
         while True:
-            pending = [i for i in sorted(virtual_or_real) if i not in reports or not reports[i]["localized"]]
-            for i in pending:
-                reports[i] = self.report(i)
-            pending = [i for i in pending if not reports[i]["localized"]]
+            pending = [i for i in sorted(reports) if not reports[i]["localized"]]
             # a real module cannot exchange side IR with virtual neighbours (docs/hil.md):
             # it is only waited for while a real neighbour could still localize it
             if not [i for i in pending if virtual_or_real[i] == "virtual"]:
@@ -141,6 +138,8 @@ class BringUp:
                                    f"localized after {self.localize_steps} steps (not connected to "
                                    "the reference, or their side IR links fail)")
             self.localize_step()
+            for i in pending:
+                reports[i] = self.report(i)
         done = sum(1 for r in reports.values() if r["localized"])
         self.say(f"bring-up: localized {done} of {n} modules in {self.localize_steps} Localize step(s)")
         view = Fleetview(source="location reports")
