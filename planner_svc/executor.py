@@ -74,6 +74,10 @@ class GroundTruth:
     def _energy(self, key: str, d: dict) -> None:
         self.energy_j = max(self.energy_j, float(d.get("run_j", 0.0)))
 
+    def cells(self) -> set[Cell]:
+        """The cells the world says are occupied."""
+        return {Cell(p.x, p.y) for p in self.poses.values()}
+
     @property
     def present(self) -> bool:
         """Whether a world publishes on this bus (a fleet of virtual modules)."""

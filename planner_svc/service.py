@@ -127,7 +127,7 @@ class PlannerService:
                        say=self.say)
             result.ok, result.reason = True, "script finished"
             if self.truth.present:
-                truth = {Cell(p.x, p.y) for p in self.truth.poses.values()}
+                truth = self.truth.cells()
                 at_goal = truth == set(self.scenario.goal)
                 result.reason += "; the world is " + ("at the goal" if at_goal else "not at the goal")
             return
@@ -164,7 +164,7 @@ class PlannerService:
         if self.view.cells() != frozenset(self.scenario.goal):
             raise MoveFailed("the moves were made but the belief is not the goal")
         if self.truth.present:
-            truth = {Cell(p.x, p.y) for p in self.truth.poses.values()}
+            truth = self.truth.cells()
             if truth != set(self.scenario.goal):
                 raise MoveFailed(f"the world does not match the goal: "
                                  f"{sorted(map(str, truth ^ set(self.scenario.goal)))}")
