@@ -1,4 +1,8 @@
-"""``complete``: a heuristic planner for large fleets that always finishes.
+"""``complete``: a heuristic planner for fleets of any size that aims to always finish.
+
+It finishes on every instance of the convex and sparse families tested and on small
+fleets (the exact search takes over), not yet on large rough blobs (Eden family, 1000
+modules): there it says "stuck" and never claims unreachability.
 
 Modules are interchangeable, so only electrons (modules off the goal) need to move,
 each to some void (empty goal cell).
@@ -667,9 +671,15 @@ class _FrontWalk(_Phase):
             swap = 0 if e == e0 else (hex_distance(e0, pair[e]) - hex_distance(e, pair[e]))
             cands.append((best + 1 + swap, e != e0, e))
         cands.sort()
-        for _, _, e in cands[:12]:
+        tried = 0
+        for _, _, e in cands:
+            if self.failed.get((e, v), -1) > self.walks:
+                continue                    # its walk failed lately: the next one
             if not is_cut_bounded(occ, e):
                 return e
+            tried += 1
+            if tried >= 12:
+                break
         return None
 
     def _step(self) -> bool:

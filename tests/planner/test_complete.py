@@ -12,7 +12,7 @@ from planner_svc.bounds import (assignment_lower_bound, random_blob, random_conv
                                 random_sparse_tree)
 from planner_svc.plan import Plan, Problem, validate
 from planner_svc.rules import (articulation_cells, find_move, hex_distance, is_connected,
-                               neighbours_xy, to_move)
+                               neighbours_xy, to_move, xy)
 
 
 def _blobs(count, sizes, seed=7):
@@ -290,3 +290,18 @@ def test_the_shared_assignment_is_the_hungarian_one():
     ref, ref_total = min_cost_assignment(distance_matrix(electrons, voids))
     assert total == total2 == ref_total == assignment_lower_bound(p.initial, p.goal)
     assert list(again) == list(ref)
+
+
+def test_front_walk_tries_another_electron_when_a_walk_fails():
+    # Eden blob, 100 modules, seed 0: the cheapest electron by the breadth-first search
+    # from the void (which pivots on the electron itself) cannot make the walk. Before
+    # the front walk skipped electrons whose walk failed, every void chose that one and
+    # the phase stopped with 35 of 39 voids left; now only the two holes and one void
+    # walled in behind them remain.
+    p = random_problem(100, 0)
+    plan = Plan("complete", p)
+    front = complete._FrontWalk(plan, {xy(c) for c in p.initial})
+    assert not front.run()
+    goal = {xy(c) for c in p.goal}
+    assert len(goal - front.occ) <= 3
+    validate(plan.steps, p.initial, None, p.fixed, p.obstacles)
