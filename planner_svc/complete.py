@@ -62,7 +62,12 @@ peels forward, then the whole peel backwards (every move is reversible), with an
 electron (or a waiting crater module, leaving a surface void) taking each hole cell.
 Each walk is re-searched on the current structure; a fill that fails is rolled back.
 These plans are long (Eden blobs of 100 modules: 8-9x the bound) but reach the goal.
-If that fails too, small fleets (``exact_limit`` modules or fewer) fall back to
+On fleets of :data:`SMOOTH_LIMIT` modules or fewer the same is also tried between
+*smoothed* shapes (:func:`smoothed_plan`): the notches of the start and of the goal are
+filled first by local repairs (:func:`smooth`; the goal's smoothing is played
+backwards at the end), so fewer notches stop the walkers, the relays go further and
+less is dug; the shorter plan is kept (Eden blobs of 100 modules: 3.8x the bound on two
+of three seeds). If that fails too, small fleets (``exact_limit`` modules or fewer) fall back to
 :mod:`planner_svc.search` from the current configuration, which also proves
 unreachability (moves are reversible, so unreachable from there is unreachable from
 the start); larger fleets report that the heuristic is stuck, without claiming
@@ -122,6 +127,10 @@ HOLE_TRY = 30
 HOLE_WIDTH = 3
 HOLE_DEEP = 2
 HOLE_PARK_GAP = 3
+#: Smoothing (:func:`smooth`, tried before digging on fleets up to SMOOTH_LIMIT modules):
+#: local repair window radius and expansions per notch.
+SMOOTH_LIMIT = 300
+SMOOTH_WINDOW = (3, 1500)
 #: Move cap per module: relays that wander without filling voids must end.
 MAX_MOVES_PER_MODULE = 60
 
@@ -799,6 +808,16 @@ def plan_complete(plan: Plan, exact_limit: int = EXACT_LIMIT) -> None:
         # (:meth:`_Heuristic._hole_step`; long plans, but they reach the goal).
         dug = Plan(plan.planner, p)
         _Heuristic(dug, holes=True).run()
+        # Through smoothed shapes: fewer notches stop the walkers, so relays go further
+        # and less is dug (Eden blobs of 100 modules: 3.8x the bound instead of 9x on
+        # two of three seeds); the shorter plan is kept.
+        smoothed = Plan(plan.planner, p)
+        if len(goal) <= SMOOTH_LIMIT and smoothed_plan(smoothed) and (
+                not dug.ok or smoothed.moves < dug.moves):
+            plan.steps, plan.ok = smoothed.steps, True
+            plan.notes.append("relays stuck; start and goal smoothed (notches filled), "
+                              "holes dug open and refilled")
+            return
         if dug.ok:
             plan.steps, plan.ok = dug.steps, True
             plan.notes.append("relays stuck; holes dug open and refilled")
@@ -1262,6 +1281,73 @@ class _Heuristic(_Phase):
                 self.repair_failed = set()
                 return True
         return False
+
+
+def notches(occ: set[Coord], obstacles: set[Coord] | frozenset[Coord] = frozenset()) -> list[Coord]:
+    """Free cells with four or more occupied neighbours: under Table 4-3 they cannot be
+    entered, and no lone walker crosses their mouth."""
+    rim = {n for c in occ for n in neighbours_xy(c)} - occ - set(obstacles)
+    return sorted(c for c in rim if sum(n in occ for n in neighbours_xy(c)) >= 4)
+
+
+def smooth(occ: set[Coord], fixed: Coord, obstacles: set[Coord]) -> list[list[Move]]:
+    """Fill notches of the structure ``occ`` (updated in place) while that lowers their
+    number; returns the moves.
+
+    Each notch is filled by :func:`local_repair` (the vacancy runs out to the surface
+    through modules that rotate into it), kept only if the structure ends with fewer
+    notches. A rough surface (Eden blobs) stops lone walkers at every notch; smoothed,
+    relays get much further.
+    """
+    steps: list[list[Move]] = []
+    radius, budget = SMOOTH_WINDOW
+    failed: set[Coord] = set()
+    count = len(notches(occ, obstacles))
+    while True:
+        for n in notches(occ, obstacles):
+            if n in failed:
+                continue
+            path = local_repair(occ, occ | {n}, fixed, obstacles, n, radius, budget)
+            trial, moves = set(occ), []
+            for cell, rule in path or ():
+                mv = to_move(trial, cell, rule)
+                moves.append([mv])
+                trial.discard(cell)
+                trial.add(xy(mv.goal))
+            after = len(notches(trial, obstacles)) if moves else count
+            if after < count:
+                occ.clear()
+                occ |= trial
+                steps += moves
+                count = after
+                failed.clear()
+                break
+            failed.add(n)
+        else:
+            return steps
+
+
+def smoothed_plan(plan: Plan) -> bool:
+    """Plan ``plan.problem`` through smoothed shapes: the start smoothed (:func:`smooth`),
+    the relays with digging from there to the smoothed goal, then the goal's smoothing
+    played backwards (every rotation is reversible). True when it reaches the goal."""
+    p: Problem = plan.problem
+    fixed, ob = xy(p.fixed), {xy(c) for c in p.obstacles}
+    start, goal = {xy(c) for c in p.initial}, {xy(c) for c in p.goal}
+    into, out = set(start), set(goal)
+    head, tail = smooth(into, fixed, ob), smooth(out, fixed, ob)
+    mid = Plan(plan.planner, Problem.of(into, out, fixed, ob, p.name))
+    relays = _Heuristic(mid)
+    relays.run()
+    if not mid.ok:
+        _Heuristic(mid, start=relays.occ, holes=True).run()
+    if not mid.ok:
+        return False
+    back = Plan(plan.planner, Problem.of(goal, out, fixed, ob, p.name))
+    back.steps = tail
+    plan.steps = head + mid.steps + reverse_steps(back, p)
+    plan.ok = True
+    return True
 
 
 def local_repair(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set[Coord],

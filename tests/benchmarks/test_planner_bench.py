@@ -9,9 +9,10 @@ the fixed cell (0,0) (see :mod:`planner_svc.bounds`):
   blob's interior is frozen, a lone walker cannot cross a notch (an empty cell with
   four occupied neighbours) and holes inside thick regions must be dug open. The
   relays of ``complete`` stall on the instances of 100 and 1000 modules; its last
-  resort, hole digging (planned peels played forward and back), solves the three of
-  100 modules (about 2200-3100 moves, 8-9x the bound, 5-10 s) but not yet the one of
-  1000 (about 20 s before it gives up).
+  resort, hole digging (planned peels played forward and back), also between
+  smoothed shapes (notches of start and goal filled first), solves the three of 100
+  modules (3.8-8.9x the bound, mean 5.5x, 10-16 s) but not yet the one of 1000 (about
+  20 s before it gives up).
 * **sparse**: random trees (:func:`random_sparse_problem`) in which no module has
   more than three occupied neighbours and no empty cell more than two, so walkers fit
   between branches. Note: these trees spread out (radius ~ n/4), so the bound and the

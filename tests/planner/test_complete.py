@@ -305,3 +305,24 @@ def test_front_walk_tries_another_electron_when_a_walk_fails():
     goal = {xy(c) for c in p.goal}
     assert len(goal - front.occ) <= 3
     validate(plan.steps, p.initial, None, p.fixed, p.obstacles)
+
+
+def test_smooth_fills_notches_with_legal_moves():
+    blob = random_blob(100, random.Random(3))
+    occ = set(blob)
+    before = complete.notches(occ)
+    steps = complete.smooth(occ, (0, 0), set())
+    assert steps and len(complete.notches(occ)) < len(before)
+    # Every move a legal rotation of the connected structure, ending where smooth says.
+    assert {xy(c) for c in validate(steps, blob, None, (0, 0))} == occ
+    assert len(occ) == len(blob) and (0, 0) in occ
+
+
+@pytest.mark.parametrize("seed", [7, 9])
+def test_smoothed_plan_reaches_the_goal(seed):
+    # Start smoothed, relays (and digging) between the smoothed shapes, the goal's
+    # smoothing played backwards: one legal plan from the real start to the real goal.
+    problem = random_problem(30, seed)
+    plan = Plan("complete", problem)
+    assert complete.smoothed_plan(plan)
+    validate(plan)
