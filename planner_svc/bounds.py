@@ -272,3 +272,48 @@ def random_convex_problem(n: int, seed: int, name: str | None = None) -> Problem
     initial = placed()
     goal = placed()
     return Problem.of(initial, goal, (0, 0), name=name or f"convex-{n}-{seed}")
+
+
+# --- the scrambled family ---------------------------------------------------------------
+def scramble(cells: set[Coord], moves: int, rng: random.Random, fixed: Coord = (0, 0)
+             ) -> tuple[set[Coord], list[tuple[Coord, object]]]:
+    """``cells`` after ``moves`` random legal rotations: each a random module with at
+    most three occupied neighbours (others cannot move), not ``fixed``, not a cut
+    vertex, by a random Table 4-3 row. Returns the final cells and the rotations
+    ``(cell before, rule)`` in order."""
+    # complete imports this module, so its move primitives are imported here.
+    from .complete import is_cut, lone_steps
+
+    occ = set(cells)
+    order = sorted(occ)                 # random picks in O(1); a move replaces its entry
+    path: list[tuple[Coord, object]] = []
+    none: set[Coord] = set()
+    while len(path) < moves:
+        k = rng.randrange(len(order))
+        c = order[k]
+        if c == fixed or sum(n in occ for n in neighbours_xy(c)) > 3:
+            continue
+        occ.discard(c)
+        steps = list(lone_steps(occ, c, none))
+        occ.add(c)
+        if not steps or is_cut(occ, c):
+            continue
+        rule, g = rng.choice(steps)
+        occ.discard(c)
+        occ.add(g)
+        order[k] = g
+        path.append((c, rule))
+    return occ, path
+
+
+def random_scrambled_problem(n: int, seed: int, name: str | None = None,
+                             moves: int | None = None) -> Problem:
+    """Scrambled family: an Eden blob (:func:`random_blob`) of ``n`` modules and, as the
+    goal, the same blob after ``moves`` (default ``2 n``) random legal rotations
+    (:func:`scramble`). Reachable by construction, so a planner that stops short of
+    the goal of one is incomplete there. The random walkers leave thin tendrils and
+    occasionally seal a pocket, which must be reopened."""
+    rng = random.Random(seed)
+    initial = random_blob(n, rng)
+    goal, _ = scramble(initial, 2 * n if moves is None else moves, rng)
+    return Problem.of(initial, goal, (0, 0), name=name or f"scrambled-{n}-{seed}")

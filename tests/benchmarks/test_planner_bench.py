@@ -22,6 +22,10 @@ the fixed cell (0,0) (see :mod:`planner_svc.bounds`):
   side lengths, the last row partial) overlapping partly. Smooth surfaces: corner
   modules peel off and walkers roll along flat faces, so ``complete`` fills the goal
   row by row (its front walks) with walks about 1.2-1.5x the hex distances.
+* **scrambled**: an Eden blob and, as the goal, the same blob after 2n random legal
+  rotations (:func:`random_scrambled_problem`): reachable by construction, so this
+  family measures completeness. The random walkers leave thin tendrils and sometimes
+  seal a pocket (an electron walled in), which must be reopened.
 
 The lower bound is the minimum-cost assignment of electrons to voids by hex distance
 (Hungarian method in numpy). It ignores that modules must walk around the structure,
@@ -44,12 +48,12 @@ import pytest
 
 from planner_svc import planners
 from planner_svc.bounds import (assignment_lower_bound, random_convex_problem, random_problem,
-                                random_sparse_problem)
+                                random_scrambled_problem, random_sparse_problem)
 from planner_svc.plan import validate
 from planner_svc.rules import xy
 
 FAMILIES = {"eden": random_problem, "sparse": random_sparse_problem,
-            "convex": random_convex_problem}
+            "convex": random_convex_problem, "scrambled": random_scrambled_problem}
 CASES = [(10, range(5)), (100, range(3)), (1000, range(1))]
 #: Convex instances are quick: more seeds per size.
 FAMILY_CASES = {"convex": [(10, range(5)), (100, range(5)), (1000, range(4))]}

@@ -8,8 +8,8 @@ import pytest
 
 from planner_svc import complete, planners
 from planner_svc.bounds import (assignment_lower_bound, random_blob, random_convex_problem,
-                                random_hex_convex, random_problem, random_sparse_problem,
-                                random_sparse_tree)
+                                random_hex_convex, random_problem, random_scrambled_problem,
+                                random_sparse_problem, random_sparse_tree, scramble)
 from planner_svc.plan import Plan, Problem, validate
 from planner_svc.rules import (articulation_cells, find_move, hex_distance, is_connected,
                                neighbours_xy, to_move, xy)
@@ -326,3 +326,21 @@ def test_smoothed_plan_reaches_the_goal(seed):
     plan = Plan("complete", problem)
     assert complete.smoothed_plan(plan)
     validate(plan)
+
+
+def test_scrambled_goals_are_reachable_by_construction():
+    start = random_blob(60, random.Random(5))
+    goal, path = scramble(start, 120, random.Random(6))
+    occ, steps = set(start), []
+    for cell, rule in path:
+        mv = to_move(occ, cell, rule)
+        steps.append([mv])
+        occ.discard(cell)
+        occ.add(xy(mv.goal))
+    assert occ == goal and goal != start
+    validate(steps, start, goal, (0, 0))        # every rotation legal, structure connected
+
+
+@pytest.mark.parametrize("n,seed", [(10, s) for s in range(4)] + [(100, s) for s in range(3)])
+def test_scrambled_instances_reach_the_goal(n, seed):
+    _check(random_scrambled_problem(n, seed))
