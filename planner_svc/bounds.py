@@ -11,8 +11,10 @@ material must go around a large overlap of start and goal, no plan comes near it
 10-module convex instance, seed 2, the bound is 10 moves and the exact planner needs
 18).
 
-Three families of random connected instances (start and goal independent, both
-containing the fixed cell (0,0)) serve the tests and the benchmark:
+Four families of random connected instances (both configurations containing the fixed
+cell (0,0)) serve the tests and the benchmark; in the first three start and goal are
+independent, the fourth (**scrambled**, :func:`random_scrambled_problem`) takes the goal
+from the start by random legal rotations, so it is reachable by construction:
 
 * **Eden** (:func:`random_problem`, :func:`random_blob`): compact blobs grown by Eden
   growth. They are hard for Table 4-3 (:mod:`planner_svc.rules`): a rotation needs the

@@ -1,8 +1,9 @@
 """Planner benchmark: planning time and moves against the assignment lower bound.
 
-Run alone: ``pytest -s tests/benchmarks/test_planner_bench.py``. Three families of random
-connected instances of 10, 100 and 1000 modules, start and goal independent and sharing
-the fixed cell (0,0) (see :mod:`planner_svc.bounds`):
+Run alone: ``pytest -s tests/benchmarks/test_planner_bench.py``. Four families of random
+connected instances of 10, 100 and 1000 modules sharing the fixed cell (0,0) (see
+:mod:`planner_svc.bounds`); in the first three start and goal are independent, in the
+last the goal is the start scrambled:
 
 * **eden**: compact Eden blobs (:func:`random_problem`). Hard under Table 4-3: a
   cell with four or more occupied neighbours can be neither entered nor left, so a
