@@ -86,7 +86,7 @@ from .bounds import distance_matrix, electron_void_assignment, min_cost_assignme
 from .plan import Plan, Problem
 from .rules import (RULE_OFFSETS, Coord, Move, MoveRule, find_move, hex_distance,
                     neighbours_xy, to_move, xy)
-from .search import DEFAULT_MARGIN, region_around, search_moves
+from .search import DEFAULT_MARGIN, best_first, region_around, search_moves
 
 #: Fleets up to this size fall back to the exact search when the heuristic is stuck.
 EXACT_LIMIT = 10
@@ -345,6 +345,19 @@ def astar_walk(rest: set[Coord], start: Coord, target: Coord, obstacles: set[Coo
 _SIDE_RELEASE = tuple((off, side.facing.joints) for side, off in
                       ((s, NEIGHBOUR_OFFSET[s]) for s in Side))
 _RULE_PARTS = {r: (so, go) for r, so, _, go in RULE_OFFSETS}
+
+
+def play(occ: set[Coord], path: Path) -> list[list[Move]]:
+    """Make the rotations of ``path`` (of one or several modules) on ``occ``, in place;
+    returns them as serial steps. Releases depend on who is next to the mobile at that
+    moment, so each move is built on the structure as it is then."""
+    steps: list[list[Move]] = []
+    for cell, rule in path:
+        mv = to_move(occ, cell, rule)
+        steps.append([mv])
+        occ.discard(cell)
+        occ.add(xy(mv.goal))
+    return steps
 
 
 def fast_move(rest: set[Coord], mobile: Coord, rule: MoveRule) -> Move:
@@ -882,14 +895,8 @@ class _Heuristic(_Phase):
     # -- helpers
     def _do_walk(self, path: Path) -> None:
         """Make the rotations of ``path`` (of one or several modules), one per step."""
-        occ, steps = self.occ, self.plan.steps
-        for cell, rule in path:
-            # Releases depend on who is next to the walker now, so build each move here.
-            mv = to_move(occ, cell, rule)
-            steps.append([mv])
-            occ.discard(cell)
-            occ.add(xy(mv.goal))
-        self.seen.add(frozenset(occ))
+        self.plan.steps += play(self.occ, path)
+        self.seen.add(frozenset(self.occ))
 
     def _mobile(self, c: Coord, occ: set[Coord] | None = None) -> bool:
         occ = self.occ if occ is None else occ
@@ -1308,12 +1315,8 @@ def smooth(occ: set[Coord], fixed: Coord, obstacles: set[Coord]) -> list[list[Mo
             if n in failed:
                 continue
             path = local_repair(occ, occ | {n}, fixed, obstacles, n, radius, budget)
-            trial, moves = set(occ), []
-            for cell, rule in path or ():
-                mv = to_move(trial, cell, rule)
-                moves.append([mv])
-                trial.discard(cell)
-                trial.add(xy(mv.goal))
+            trial = set(occ)
+            moves = play(trial, path or [])
             after = len(notches(trial, obstacles)) if moves else count
             if after < count:
                 occ.clear()
@@ -1378,37 +1381,19 @@ def local_repair(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set
     def score(conf: frozenset[Coord]) -> int:
         return ((target not in conf) if fill else (target in conf)) + missing(conf)
 
-    tie = itertools.count()
-    parent: dict[frozenset[Coord], tuple[frozenset[Coord], Coord, MoveRule] | None] = {start: None}
-    cost = {start: 0}
-    heap = [(score(start), next(tie), start)]
-    expanded = 0
-    while heap:
-        _, _, conf = heapq.heappop(heap)
-        if score(conf) == 0:
-            path: Path = []
-            while (link := parent[conf]) is not None:
-                conf, m, rule = link
-                path.append((m, rule))
-            return path[::-1]
-        expanded += 1
-        if expanded > budget:
-            return None
+    def successors(conf: frozenset[Coord]):
         full = outside | conf
-        g = cost[conf] + 1
         for m in conf:
             if m == fixed or not can_move(full, m, obstacles) or is_cut(full, m):
                 continue
             for rule, d in lone_steps(full, m, obstacles):  # full holds m: no checked cell is m
-                if d not in window:
-                    continue
-                nxt = frozenset((conf - {m}) | {d})
-                if g < cost.get(nxt, 1 << 30):
-                    cost[nxt] = g
-                    parent[nxt] = (conf, m, rule)
-                    # Weighted: the score counts cells, a repair needs several moves each.
-                    heapq.heappush(heap, (g + REPAIR_WEIGHT * score(nxt), next(tie), nxt))
-    return None
+                if d in window:
+                    yield m, rule, frozenset((conf - {m}) | {d})
+
+    # Weighted: the score counts cells, a repair needs several moves each.
+    found, _ = best_first(start, successors, lambda conf: score(conf) == 0,
+                          lambda g, conf: g + REPAIR_WEIGHT * score(conf), budget)
+    return None if found is None else [(m, rule) for _, m, rule in found]
 
 
 def _finish_small(plan: Plan, occ: set[Coord], goal: set[Coord], fixed: Coord,

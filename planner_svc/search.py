@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import heapq
 import itertools
+from typing import Callable, Iterable
 
 from bus.lattice import Cell
 
@@ -42,6 +43,45 @@ def region_around(cells: set[Coord], margin: int) -> set[Coord]:
     return out
 
 
+def best_first(start: frozenset[Coord],
+               successors: Callable[[frozenset[Coord]],
+                                    Iterable[tuple[Coord, object, frozenset[Coord]]]],
+               is_goal: Callable[[frozenset[Coord]], bool],
+               priority: Callable[[int, frozenset[Coord]], float], budget: int
+               ) -> tuple[list[tuple[frozenset[Coord], Coord, object]] | None, int]:
+    """Best-first search over configurations, one rotation per edge.
+
+    ``successors(conf)`` yields ``(mobile, rule, next configuration)``; a configuration
+    reached with ``g`` moves is queued by ``priority(g, conf)`` (A* when that is ``g`` plus
+    an admissible estimate). Returns the path as ``(configuration before, mobile, rule)``
+    from ``start`` to the first goal taken off the queue, or None (no goal reachable, or
+    more than ``budget`` expansions), and the number of expansions.
+    """
+    tie = itertools.count()
+    parent: dict[frozenset[Coord], tuple[frozenset[Coord], Coord, object] | None] = {start: None}
+    cost = {start: 0}
+    heap = [(priority(0, start), next(tie), start)]
+    expanded = 0
+    while heap:
+        _, _, conf = heapq.heappop(heap)
+        if is_goal(conf):
+            path = []
+            while (link := parent[conf]) is not None:
+                path.append(link)
+                conf = link[0]
+            return path[::-1], expanded
+        expanded += 1
+        if expanded > budget:
+            return None, expanded
+        g = cost[conf] + 1
+        for m, rule, nxt in successors(conf):
+            if g < cost.get(nxt, 1 << 30):
+                cost[nxt] = g
+                parent[nxt] = (conf, m, rule)
+                heapq.heappush(heap, (priority(g, nxt), next(tie), nxt))
+    return None, expanded
+
+
 def search_moves(start: frozenset[Coord], goal: frozenset[Coord], fixed: Coord,
                  obstacles: set[Coord], region: set[Coord], max_configurations: int
                  ) -> tuple[list[tuple[frozenset[Coord], Coord, object]] | None, int]:
@@ -52,36 +92,16 @@ def search_moves(start: frozenset[Coord], goal: frozenset[Coord], fixed: Coord,
     def h(conf: frozenset[Coord]) -> int:
         return sum(min(hex_distance(c, g) for g in goal_list) for c in conf - goal)
 
-    tie = itertools.count()
-    parent: dict[frozenset[Coord], tuple[frozenset[Coord], Coord, object] | None] = {start: None}
-    cost = {start: 0}
-    heap = [(h(start), next(tie), start)]
-    expanded = 0
-    while heap:
-        _, _, conf = heapq.heappop(heap)
-        if conf == goal:
-            path = []
-            while parent[conf] is not None:
-                prev, m, rule = parent[conf]
-                path.append((prev, m, rule))
-                conf = prev
-            return path[::-1], expanded
-        expanded += 1
-        if expanded > max_configurations:
-            return None, expanded
-        g = cost[conf] + 1
+    def successors(conf: frozenset[Coord]):
         occ = set(conf)
         for _, m, rule in _legal_xy(occ, fixed, obstacles):
             go = _GOAL_OFFSET[rule]
             dest = (m[0] + go[0], m[1] + go[1])
-            if dest not in region:
-                continue
-            nxt = frozenset(occ - {m} | {dest})
-            if g < cost.get(nxt, 1 << 30):
-                cost[nxt] = g
-                parent[nxt] = (conf, m, rule)
-                heapq.heappush(heap, (g + h(nxt), next(tie), nxt))
-    return None, expanded
+            if dest in region:
+                yield m, rule, frozenset(occ - {m} | {dest})
+
+    return best_first(start, successors, lambda conf: conf == goal, lambda g, conf: g + h(conf),
+                      max_configurations)
 
 
 def plan_exact(plan: Plan, margin: int = DEFAULT_MARGIN,

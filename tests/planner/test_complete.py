@@ -331,12 +331,8 @@ def test_smoothed_plan_reaches_the_goal(seed):
 def test_scrambled_goals_are_reachable_by_construction():
     start = random_blob(60, random.Random(5))
     goal, path = scramble(start, 120, random.Random(6))
-    occ, steps = set(start), []
-    for cell, rule in path:
-        mv = to_move(occ, cell, rule)
-        steps.append([mv])
-        occ.discard(cell)
-        occ.add(xy(mv.goal))
+    occ = set(start)
+    steps = complete.play(occ, path)
     assert occ == goal and goal != start
     validate(steps, start, goal, (0, 0))        # every rotation legal, structure connected
 
