@@ -86,7 +86,7 @@ from .bounds import distance_matrix, electron_void_assignment, min_cost_assignme
 from .plan import Plan, Problem
 from .rules import (RULE_OFFSETS, Coord, Move, MoveRule, find_move, hex_distance,
                     neighbours_xy, to_move, xy)
-from .search import DEFAULT_MARGIN, best_first, region_around, search_moves
+from .search import DEFAULT_MARGIN, best_first, search_from
 
 #: Fleets up to this size fall back to the exact search when the heuristic is stuck.
 EXACT_LIMIT = 10
@@ -838,8 +838,7 @@ def plan_complete(plan: Plan, exact_limit: int = EXACT_LIMIT) -> None:
     plan.steps, plan.ok, plan.reason = forward.steps, forward.ok, forward.reason
     if not forward.ok:
         occ = {xy(c) for c in forward.configurations()[-1]}
-        _finish_small(plan, occ, {xy(c) for c in p.goal}, xy(p.fixed),
-                      {xy(c) for c in p.obstacles}, exact_limit)
+        _finish_small(plan, occ, exact_limit)
 
 
 def reverse_steps(plan: Plan, problem: Problem) -> list[list[Move]]:
@@ -1396,26 +1395,17 @@ def local_repair(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set
     return None if found is None else [(m, rule) for _, m, rule in found]
 
 
-def _finish_small(plan: Plan, occ: set[Coord], goal: set[Coord], fixed: Coord,
-                  obstacles: set[Coord], exact_limit: int) -> None:
-    """The heuristic is stuck: finish with the exact search if the fleet is small."""
+def _finish_small(plan: Plan, occ: set[Coord], exact_limit: int) -> None:
+    """The heuristic is stuck at ``occ``: finish with the exact search if the fleet is small."""
     n = len(occ)
     if n > exact_limit:
+        voids = {xy(c) for c in plan.problem.goal} - occ
         plan.reason = (f"complete heuristic stuck after {plan.moves} moves with "
-                       f"{len(goal - occ)} voids left (not proven unreachable; "
+                       f"{len(voids)} voids left (not proven unreachable; "
                        f"{n} modules is too many for the exact search)")
         return
-    region = region_around(occ | goal, DEFAULT_MARGIN)
-    path, expanded = search_moves(frozenset(occ), frozenset(goal), fixed, obstacles, region,
-                                  EXACT_BUDGET)
-    if path is None:
-        if expanded > EXACT_BUDGET:
-            plan.reason = f"exact search gave up after {EXACT_BUDGET} configurations"
-        else:
-            plan.reason = (f"unreachable: the exact search found no plan within {DEFAULT_MARGIN} "
-                           f"cells of the configurations ({expanded} configurations explored)")
-        return
-    plan.notes.append(f"heuristic stuck after {plan.moves} moves; exact search finished "
-                      f"with {len(path)} more")
-    plan.steps.extend([to_move(conf, m, rule)] for conf, m, rule in path)
-    plan.ok = True
+    before = plan.moves
+    search_from(plan, occ, DEFAULT_MARGIN, EXACT_BUDGET)
+    if plan.ok:
+        plan.notes.append(f"heuristic stuck after {before} moves; exact search finished "
+                          f"with {plan.moves - before} more")

@@ -104,11 +104,13 @@ def search_moves(start: frozenset[Coord], goal: frozenset[Coord], fixed: Coord,
                       max_configurations)
 
 
-def plan_exact(plan: Plan, margin: int = DEFAULT_MARGIN,
-               max_configurations: int = DEFAULT_MAX_CONFIGURATIONS) -> None:
-    """Fill ``plan`` with a fewest-moves serial plan, or say why there is none."""
+def search_from(plan: Plan, occ: Iterable[Cell | Coord], margin: int = DEFAULT_MARGIN,
+                max_configurations: int = DEFAULT_MAX_CONFIGURATIONS) -> int:
+    """Append to ``plan`` the fewest moves from the configuration ``occ`` to its goal and
+    set ``plan.ok``, or say in ``plan.reason`` why there are none. Returns the number of
+    configurations expanded."""
     p = plan.problem
-    start = frozenset(xy(c) for c in p.initial)
+    start = frozenset(xy(c) for c in occ)
     goal = frozenset(xy(c) for c in p.goal)
     region = region_around(set(start | goal), margin)
     path, expanded = search_moves(start, goal, xy(p.fixed), {xy(c) for c in p.obstacles},
@@ -117,13 +119,21 @@ def plan_exact(plan: Plan, margin: int = DEFAULT_MARGIN,
         if expanded > max_configurations:
             plan.reason = f"exact search gave up after {max_configurations} configurations"
         else:
-            plan.reason = (f"unreachable: no plan within {margin} cells of the initial and goal "
-                           f"configurations ({expanded} configurations explored)")
-        return
-    plan.steps = [[to_move(conf, m, rule)] for conf, m, rule in path]
+            plan.reason = (f"unreachable: the exact search found no plan within {margin} cells "
+                           f"of the configurations ({expanded} configurations explored)")
+        return expanded
+    plan.steps.extend([to_move(conf, m, rule)] for conf, m, rule in path)
     plan.ok = True
-    plan.notes.append(f"exact: {expanded} configurations expanded; plan has the fewest moves "
-                      f"within the search region")
+    return expanded
+
+
+def plan_exact(plan: Plan, margin: int = DEFAULT_MARGIN,
+               max_configurations: int = DEFAULT_MAX_CONFIGURATIONS) -> None:
+    """Fill ``plan`` with a fewest-moves serial plan, or say why there is none."""
+    expanded = search_from(plan, plan.problem.initial, margin, max_configurations)
+    if plan.ok:
+        plan.notes.append(f"exact: {expanded} configurations expanded; plan has the fewest "
+                          "moves within the search region")
 
 
 def exact_reachable(initial, goal, fixed, obstacles=(), margin: int = DEFAULT_MARGIN,
