@@ -42,9 +42,14 @@ of the surface. Material still flows by *relays*:
    enclosed and deep voids (they only get harder to enter);
 3. the chain's walks are made from the void end, each re-searched on the current
    structure;
-4. when no chain exists, a small best-first search in a window around a blocked void
-   (or trapped electron) may move settled modules out and back
-   (:func:`local_repair`), pushing the vacancy out to the surface.
+4. when no chain exists, a void with an electron at most four cells away is filled by
+   a best-first search in a window around it (:func:`local_exchange`): the electron is
+   often walled in, or the void behind a notch, and settled modules stepping aside and
+   back let the two trade places (Eden blobs of 10 modules: mean 1.41x the bound
+   instead of 1.81x; scrambled blobs of 100: at most 2.1x instead of 17.8x);
+5. failing that, a small best-first search in a window around a blocked void (or
+   trapped electron) may move settled modules out and back (:func:`local_repair`),
+   pushing the vacancy out to the surface.
 
 When the cheapest chain cannot be walked (e.g. it would repeat a configuration) the
 next cheapest is tried (:data:`RELAY_RETRIES`).
@@ -61,7 +66,7 @@ the goal, until every hole cell has been peeled -- then played for real: the cra
 peels forward, then the whole peel backwards (every move is reversible), with an
 electron (or a waiting crater module, leaving a surface void) taking each hole cell.
 Each walk is re-searched on the current structure; a fill that fails is rolled back.
-These plans are long (Eden blobs of 100 modules: 8-9x the bound) but reach the goal.
+These plans are long (Eden blobs of 100 modules: up to 8x the bound) but reach the goal.
 On fleets of :data:`SMOOTH_LIMIT` modules or fewer the same is also tried between
 *smoothed* shapes (:func:`smoothed_plan`): the notches of the start and of the goal are
 filled first by local repairs (:func:`smooth`; the goal's smoothing is played
@@ -109,6 +114,8 @@ REPAIR_WINDOWS = ((3, 1000), (4, 2000))
 #: Blocked cells tried per repair step, and repair searches per run (bounds the time).
 REPAIR_TARGETS = 4
 REPAIR_CALLS = 16
+#: Local exchange (:func:`local_exchange`): window radius around a void, expansions.
+EXCHANGE_WINDOW = (4, 1000)
 #: Weight of the remaining defects against moves made in the local repair search.
 REPAIR_WEIGHT = 3
 #: Hole digging (last resort, :meth:`_Heuristic._hole_step`): planned fills per run,
@@ -866,6 +873,8 @@ class _Heuristic(_Phase):
         #: (target, radius) pairs whose local repair failed since the last repair.
         self.repair_failed: set[tuple[Coord, int]] = set()
         self.repair_budget = REPAIR_CALLS
+        #: Voids whose local exchange failed since the last one that worked.
+        self.exchange_failed: set[Coord] = set()
         #: Planned hole fills left (:meth:`_hole_step`; only when ``holes``).
         self.hole_budget = HOLE_CALLS if holes else 0
         self.hole_failed: set[tuple[frozenset[Coord], frozenset[Coord]]] = set()
@@ -881,6 +890,8 @@ class _Heuristic(_Phase):
                 return
             if self._relay_step():
                 self.stats["relay"] = self.stats.get("relay", 0) + 1
+            elif self._exchange_step():
+                self.stats["exchange"] = self.stats.get("exchange", 0) + 1
             elif self._repair_step():
                 self.stats["repair"] = self.stats.get("repair", 0) + 1
             elif self._hole_step():
@@ -1263,6 +1274,29 @@ class _Heuristic(_Phase):
         self._do_walk(path)
         return True
 
+    def _exchange_step(self) -> bool:
+        """Fill a void from an electron a few cells away by a local search
+        (:func:`local_exchange`) in a window around the void, nearest pairs first. Voids
+        with no electron that near are left to the repairs and digging; a void whose
+        search failed waits until an exchange succeeds somewhere."""
+        occ, goal = self.occ, self.goal
+        electrons = sorted(occ - goal)
+        radius, budget = EXCHANGE_WINDOW
+        near = []
+        for v in self._targets():
+            if v not in self.exchange_failed:
+                d = min((hex_distance(v, e) for e in electrons), default=radius + 1)
+                if d <= radius:
+                    near.append((d, v))
+        for _, v in sorted(near):
+            path = local_exchange(occ, goal, self.fixed, self.obstacles, v, radius, budget)
+            if path:
+                self._do_walk(path)
+                self.exchange_failed.clear()
+                return True
+            self.exchange_failed.add(v)
+        return False
+
     def _repair_step(self) -> bool:
         """Fill a blocked void (or free a trapped electron) by a local search that may
         move settled modules out and back (:func:`local_repair`)."""
@@ -1363,9 +1397,7 @@ def local_repair(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set
     moves out to the surface, where relays can fill it. The rest of the structure stays
     still, so connectivity is checked on the whole of it.
     """
-    tx, ty = target
-    window = {(tx + dx, ty + dy) for dx in range(-radius, radius + 1)
-              for dy in range(-radius, radius + 1) if abs(dx) + abs(dy) + abs(dx + dy) <= 2 * radius}
+    window = set(_disk(target, radius))
     outside = occ - window
     start = frozenset(occ & window)
     keep = start & goal
@@ -1380,6 +1412,17 @@ def local_repair(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set
     def score(conf: frozenset[Coord]) -> int:
         return ((target not in conf) if fill else (target in conf)) + missing(conf)
 
+    # Weighted: the score counts cells, a repair needs several moves each.
+    found, _ = best_first(start, _window_moves(window, outside, fixed, obstacles),
+                          lambda conf: score(conf) == 0,
+                          lambda g, conf: g + REPAIR_WEIGHT * score(conf), budget)
+    return None if found is None else [(m, rule) for _, m, rule in found]
+
+
+def _window_moves(window: set[Coord], outside: set[Coord], fixed: Coord,
+                  obstacles: set[Coord]):
+    """Successors for a search inside ``window`` with the structure ``outside`` it still:
+    every legal rotation of a module of the window to a cell of the window."""
     def successors(conf: frozenset[Coord]):
         full = outside | conf
         for m in conf:
@@ -1388,10 +1431,36 @@ def local_repair(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set
             for rule, d in lone_steps(full, m, obstacles):  # full holds m: no checked cell is m
                 if d in window:
                     yield m, rule, frozenset((conf - {m}) | {d})
+    return successors
 
-    # Weighted: the score counts cells, a repair needs several moves each.
-    found, _ = best_first(start, successors, lambda conf: score(conf) == 0,
-                          lambda g, conf: g + REPAIR_WEIGHT * score(conf), budget)
+
+def local_exchange(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set[Coord],
+                   center: Coord, radius: int, budget: int) -> Path | None:
+    """Best-first search, inside a window of ``radius`` around ``center``, for rotations
+    after which the window holds one electron and one void fewer (an electron of the
+    window has, directly or through settled modules moving aside and back, filled a void
+    of the window). The rest of the structure stays still.
+
+    Where the relays find no chain the trouble is often local: the electron is walled in
+    and the void sits behind a notch a few cells away; here they trade places.
+    """
+    window = set(_disk(center, radius))
+    outside = occ - window
+    start = frozenset(occ & window)
+    want = goal & window
+
+    def defects(conf: frozenset[Coord]) -> int:
+        return len(want - conf) + len(conf - goal)
+
+    def estimate(conf: frozenset[Coord]) -> int:
+        extra = conf - goal
+        gap = sum(min(hex_distance(v, e) for e in extra) for v in want - conf) if extra else 0
+        return REPAIR_WEIGHT * defects(conf) + gap
+
+    goal_defects = defects(start) - 2
+    found, _ = best_first(start, _window_moves(window, outside, fixed, obstacles),
+                          lambda conf: defects(conf) <= goal_defects,
+                          lambda g, conf: g + estimate(conf), budget)
     return None if found is None else [(m, rule) for _, m, rule in found]
 
 

@@ -9,11 +9,11 @@ last the goal is the start scrambled:
   cell with four or more occupied neighbours can be neither entered nor left, so a
   blob's interior is frozen, a lone walker cannot cross a notch (an empty cell with
   four occupied neighbours) and holes inside thick regions must be dug open. The
-  relays of ``complete`` stall on the instances of 100 and 1000 modules; its last
-  resort, hole digging (planned peels played forward and back), also between
-  smoothed shapes (notches of start and goal filled first), solves the three of 100
-  modules (3.8-8.9x the bound, mean 5.5x, 10-16 s) but not yet the one of 1000 (about
-  20 s before it gives up).
+  relays and local exchanges of ``complete`` stall on the instances of 100 and 1000
+  modules; its last resort, hole digging (planned peels played forward and back),
+  also between smoothed shapes (notches of start and goal filled first), solves the
+  three of 100 modules (3.2-7.7x the bound, mean 4.9x, 12-22 s) but not yet the one of
+  1000 (48 voids left after about 45 s).
 * **sparse**: random trees (:func:`random_sparse_problem`) in which no module has
   more than three occupied neighbours and no empty cell more than two, so walkers fit
   between branches. Note: these trees spread out (radius ~ n/4), so the bound and the
@@ -27,6 +27,12 @@ last the goal is the start scrambled:
   rotations (:func:`random_scrambled_problem`): reachable by construction, so this
   family measures completeness. The random walkers leave thin tendrils and sometimes
   seal a pocket (an electron walled in), which must be reopened.
+
+Each instance also gets a *walk reference*
+(:func:`planner_svc.bounds.walk_reference`): the same assignment with each module's cost
+its shortest path through the cells of start and goal. It is not a bound (a plan may
+bridge free space) but it separates what the shapes cost from what the planner loses:
+on random trees it is about 2x the bound.
 
 The lower bound is the minimum-cost assignment of electrons to voids by hex distance
 (Hungarian method in numpy). It ignores that modules must walk around the structure,
@@ -49,7 +55,7 @@ import pytest
 
 from planner_svc import planners
 from planner_svc.bounds import (assignment_lower_bound, random_convex_problem, random_problem,
-                                random_scrambled_problem, random_sparse_problem)
+                                random_scrambled_problem, random_sparse_problem, walk_reference)
 from planner_svc.plan import validate
 from planner_svc.rules import xy
 
@@ -89,20 +95,24 @@ def test_planner_benchmark():
                 t0 = time.perf_counter()
                 lb = assignment_lower_bound(problem.initial, problem.goal)
                 lb_s = time.perf_counter() - t0
+                ref = walk_reference(problem.initial, problem.goal)
                 for name in PLANNERS:
                     if name == "thesis-serial" and (n > 100 or family != "eden"):
                         continue  # value iteration per move: minutes at this size
                     plan = planners.get(name).plan(problem)
                     checked = _check(plan)
                     rows.append((family, n, seed, name, plan.ok, plan.moves, lb, lb_s,
-                                 plan.seconds, checked, plan.reason))
+                                 plan.seconds, checked, plan.reason, ref))
     print()
     print(f"{'family':7} {'n':>5} {'seed':>4} {'planner':14} {'ok':3} {'moves':>7} {'bound':>7} "
-          f"{'ratio':>6} {'bound s':>8} {'plan s':>8} {'validated':>11}  reason")
-    for family, n, seed, name, ok, moves, lb, lb_s, secs, checked, reason in rows:
+          f"{'ratio':>6} {'walkref':>7} {'ratio':>6} {'bound s':>8} {'plan s':>8} "
+          f"{'validated':>11}  reason")
+    for family, n, seed, name, ok, moves, lb, lb_s, secs, checked, reason, ref in rows:
         ratio = moves / lb if lb else float("nan")
+        to_ref = moves / ref if ref else float("nan")
         print(f"{family:7} {n:5} {seed:4} {name:14} {'yes' if ok else 'no':3} {moves:7} {lb:7} "
-              f"{ratio:6.2f} {lb_s:8.3f} {secs:8.3f} {checked:>11}  {reason[:60]}")
+              f"{ratio:6.2f} {ref:7} {to_ref:6.2f} {lb_s:8.3f} {secs:8.3f} {checked:>11}  "
+              f"{reason[:60]}")
     for family in FAMILIES:
         done = [r for r in rows if r[0] == family and r[3] == "complete"]
         print(f"complete on {family}: {sum(r[4] for r in done)}/{len(done)} instances reached "
@@ -113,7 +123,9 @@ def test_planner_benchmark():
                 print(f"    n={n:5}: none solved")
                 continue
             ratios = [r[5] / r[6] for r in ok]
+            refs = [r[5] / r[11] for r in ok if r[11]]
             print(f"    n={n:5}: solved {len(ok)}/{sum(r[1] == n for r in done)}, "
                   f"worst time {max(r[7] + r[8] for r in ok):.2f} s (bound + plan), "
                   f"ratio to bound worst "
-                  f"{max(ratios):.2f} mean {sum(ratios) / len(ratios):.2f}")
+                  f"{max(ratios):.2f} mean {sum(ratios) / len(ratios):.2f}, "
+                  f"to walk reference mean {sum(refs) / max(len(refs), 1):.2f}")

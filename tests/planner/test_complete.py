@@ -340,3 +340,36 @@ def test_scrambled_goals_are_reachable_by_construction():
 @pytest.mark.parametrize("n,seed", [(10, s) for s in range(4)] + [(100, s) for s in range(3)])
 def test_scrambled_instances_reach_the_goal(n, seed):
     _check(random_scrambled_problem(n, seed))
+
+
+# --- local exchange (a walled-in electron trades places with a void a few cells away) -----------
+def test_local_exchange_plans_are_legal_and_trade_one_electron_for_one_void():
+    rng = random.Random(3)
+    found = 0
+    for _ in range(40):
+        occ = random_blob(40, rng)
+        inner = sorted(c for c in occ if c != (0, 0))
+        e = rng.choice(inner)
+        rim = sorted({n for c in occ for n in neighbours_xy(c)} - occ)
+        near = [v for v in rim if 2 <= hex_distance(v, e) <= 4]
+        if not near:
+            continue
+        v = rng.choice(near)
+        goal = (occ - {e}) | {v}
+        if not is_connected(goal):
+            continue
+        path = complete.local_exchange(occ, goal, (0, 0), set(), v, 4, 1000)
+        if path is None:
+            continue
+        cur = set(occ)
+        steps = complete.play(cur, path)
+        validate(steps, occ, goal, (0, 0))      # legal, connected, and exactly the goal
+        found += 1
+    assert found >= 10
+
+
+def test_exchange_finds_the_short_plan_on_a_walled_in_electron():
+    # Eden, 10 modules, seed 4: the optimum is 11 moves; before local exchanges the
+    # relays and repairs wandered to 27.
+    plan = _check(random_problem(10, 4))
+    assert plan.moves <= 13
