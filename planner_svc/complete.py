@@ -81,6 +81,7 @@ unreachability.
 
 from __future__ import annotations
 
+import functools
 import heapq
 import itertools
 from collections import deque
@@ -111,7 +112,8 @@ RELAY_RETRIES = 8
 RELAY_LIMIT = 400
 #: Local repair windows (radius, expansions), tried in turn around a blocked void.
 REPAIR_WINDOWS = ((3, 1000), (4, 2000))
-#: Blocked cells tried per repair step, and repair searches per run (bounds the time).
+#: Blocked cells tried per repair step, and repair searches allowed until the voids
+#: left reach a new low (bounds the time; repairs that led to progress earn more).
 REPAIR_TARGETS = 4
 REPAIR_CALLS = 16
 #: Local exchange (:func:`local_exchange`): window radius around a void, expansions.
@@ -202,10 +204,9 @@ def walk(rest: set[Coord], start: Coord, targets: set[Coord], obstacles: set[Coo
         if c in targets and c != start:
             end = c
             break
-        for rule, g in lone_steps(rest, c, obstacles):
-            if g not in came:
-                came[g] = (c, rule)
-                todo.append(g)
+        for rule, g in lone_steps(rest, c, obstacles, came):
+            came[g] = (c, rule)
+            todo.append(g)
         if limit is not None and len(came) > limit:
             break
     if end is None:
@@ -217,19 +218,23 @@ def walk(rest: set[Coord], start: Coord, targets: set[Coord], obstacles: set[Coo
     return path[::-1]
 
 
-def lone_steps(rest: set[Coord], c: Coord, obstacles: set[Coord]):
+def lone_steps(rest: set[Coord], c: Coord, obstacles: set[Coord],
+               skip: set[Coord] | dict[Coord, object] = frozenset()):
     """The legal rotations of a lone walker at ``c`` over the still structure ``rest``:
     ``(rule, goal cell)`` for each Table 4-3 row whose substrate is there and whose goal
-    and sweep cells are free."""
+    and sweep cells are free; goal cells in ``skip`` (already reached by a search) are
+    left out before the sweep is checked."""
     cx, cy = c
     for rule, (sx, sy), empties, (gx, gy) in RULE_OFFSETS:
         g = (cx + gx, cy + gy)
-        if g in rest or g in obstacles or (cx + sx, cy + sy) not in rest:
+        if g in skip or g in rest or g in obstacles or (cx + sx, cy + sy) not in rest:
             continue
-        if any((cx + ex, cy + ey) in rest or (cx + ex, cy + ey) in obstacles
-               for ex, ey in empties):
-            continue
-        yield rule, g
+        for ex, ey in empties:
+            e = (cx + ex, cy + ey)
+            if e in rest or e in obstacles:
+                break
+        else:
+            yield rule, g
 
 
 def bfs(rest: set[Coord], start: Coord, obstacles: set[Coord]
@@ -241,10 +246,9 @@ def bfs(rest: set[Coord], start: Coord, obstacles: set[Coord]
     while todo:
         c = todo.popleft()
         d = out[c][0] + 1
-        for rule, g in lone_steps(rest, c, obstacles):
-            if g not in out:
-                out[g] = (d, c, rule)
-                todo.append(g)
+        for rule, g in lone_steps(rest, c, obstacles, out):
+            out[g] = (d, c, rule)
+            todo.append(g)
     return out
 
 
@@ -367,16 +371,26 @@ def play(occ: set[Coord], path: Path) -> list[list[Move]]:
     return steps
 
 
+#: Per Table 4-3 row: substrate and goal offsets, and the sides (offset, joints) whose
+#: neighbours release (every side but the substrate's; the goal's is free anyway).
+_RULE_RELEASE = {r: (so, go, tuple((off, joints) for off, joints in _SIDE_RELEASE if off != so))
+                 for r, (so, go) in _RULE_PARTS.items()}
+
+
+@functools.lru_cache(maxsize=1 << 16)
+def _cell(x: int, y: int) -> Cell:
+    return Cell(x, y)
+
+
 def fast_move(rest: set[Coord], mobile: Coord, rule: MoveRule) -> Move:
     """:func:`planner_svc.rules.to_move` for a walker at ``mobile`` over ``rest`` (the
     structure without the walker), with the side tables precomputed: the same Move."""
-    (sx, sy), (gx, gy) = _RULE_PARTS[rule]
+    (sx, sy), (gx, gy), sides = _RULE_RELEASE[rule]
     x, y = mobile
-    sub = (x + sx, y + sy)
-    release = tuple((Cell(x + dx, y + dy), j) for (dx, dy), joints in _SIDE_RELEASE
-                    if (x + dx, y + dy) in rest and (x + dx, y + dy) != sub for j in joints)
-    return Move(Cell(x, y), Cell(x + gx, y + gy), rule.joint, rule.direction, Cell(*sub),
-                release)
+    release = tuple((_cell(x + dx, y + dy), j) for (dx, dy), joints in sides
+                    if (x + dx, y + dy) in rest for j in joints)
+    return Move(_cell(x, y), _cell(x + gx, y + gy), rule.joint, rule.direction,
+                _cell(x + sx, y + sy), release)
 
 
 class _Phase:
@@ -883,7 +897,13 @@ class _Heuristic(_Phase):
         """Relay until the goal is reached or neither a relay nor an opening move exists."""
         goal = self.goal
         max_moves = MAX_MOVES_PER_MODULE * len(goal) + 100
+        fewest = len(goal - self.occ)
         while self.occ != goal:
+            left = len(goal - self.occ)
+            if left < fewest:
+                # Progress: the repairs that led here earn a fresh budget.
+                fewest = left
+                self.repair_budget = REPAIR_CALLS
             if self.plan.moves > max_moves:
                 self.plan.reason = (f"complete heuristic gave up after {self.plan.moves} moves "
                                     f"with {len(goal - self.occ)} voids left")
