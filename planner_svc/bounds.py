@@ -49,12 +49,13 @@ from __future__ import annotations
 import random
 from typing import Iterable
 
+import networkx as nx
 import numpy as np
 
 from bus.lattice import Cell
 
 from .plan import Problem
-from .rules import Coord, neighbours_xy, xy
+from .rules import Coord, neighbours_xy, occupancy_graph, xy
 
 
 def min_cost_assignment(cost: np.ndarray) -> tuple[np.ndarray, float]:
@@ -161,22 +162,10 @@ def walk_reference(initial: Iterable[Cell | Coord], goal: Iterable[Cell | Coord]
     electrons, voids = sorted(i - g), sorted(g - i)
     if not electrons:
         return 0
-    cells = i | g
-    column = {v: k for k, v in enumerate(voids)}
-    cost = np.zeros((len(electrons), len(voids)))
-    for row, e in enumerate(electrons):
-        dist = {e: 0}
-        frontier = [e]
-        while frontier:
-            nxt = []
-            for c in frontier:
-                for n in neighbours_xy(c):
-                    if n in cells and n not in dist:
-                        dist[n] = dist[c] + 1
-                        nxt.append(n)
-                        if n in column:
-                            cost[row, column[n]] = dist[n]
-            frontier = nxt
+    graph = occupancy_graph(i | g)
+    cost = np.array([[lengths[v] for v in voids]
+                     for lengths in (nx.single_source_shortest_path_length(graph, e)
+                                     for e in electrons)], dtype=float)
     _, total = min_cost_assignment(cost)
     return int(round(total))
 

@@ -9,7 +9,8 @@ import pytest
 from planner_svc import complete, planners
 from planner_svc.bounds import (assignment_lower_bound, random_blob, random_convex_problem,
                                 random_hex_convex, random_problem, random_scrambled_problem,
-                                random_sparse_problem, random_sparse_tree, scramble)
+                                random_sparse_problem, random_sparse_tree, scramble,
+                                walk_reference)
 from planner_svc.plan import Plan, Problem, validate
 from planner_svc.rules import (articulation_cells, find_move, hex_distance, is_connected,
                                neighbours_xy, to_move, xy)
@@ -373,3 +374,14 @@ def test_exchange_finds_the_short_plan_on_a_walled_in_electron():
     # relays and repairs wandered to 27.
     plan = _check(random_problem(10, 4))
     assert plan.moves <= 13
+
+
+def test_walk_reference_counts_paths_through_start_and_goal_cells():
+    # Start: a row to the east; goal: a row to the north-west. (2,0) -> (0,2) is two
+    # cells apart, but through start and goal cells it is three ((1,0), (0,1) between).
+    start, goal = {(0, 0), (1, 0), (2, 0)}, {(0, 0), (0, 1), (0, 2)}
+    assert assignment_lower_bound(start, goal) == 3
+    assert walk_reference(start, goal) == 4
+    for problem in (random_sparse_problem(30, 1), random_problem(30, 2)):
+        assert walk_reference(problem.initial, problem.goal) >= assignment_lower_bound(
+            problem.initial, problem.goal)
