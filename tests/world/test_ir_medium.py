@@ -6,26 +6,20 @@ modules' orientations) whose multiplexer stays on the facing transceiver for the
 
 from __future__ import annotations
 
-import itertools
 
 import pytest
 
 from bus import codec
-from bus.clock import VirtualClock
 from bus.functions import FunctionCode as F
 from bus.ir import IrTransmitter
 from bus.lattice import Cell, rule_for_step
 from bus.scenario import load, loads
-from bus.session import SessionOptions
 from bus.timing import NS_PER_S, SUBSTRATE_ACK_DELAY_TICKS, TICK_NS, byte_time_ns
-from bus.transport import Bus
 from module_sim import avr
-from module_sim.fleet import Fleet
 from module_sim.physics import rotation_arguments
-from planner_svc.endpoint import PcEndpoint
 
-_fleets = itertools.count()
-BOOTED_S = 9.0  # every module has printed COMM. LISTENING by then (docs/protocol.md)
+from fleet_rig import FleetRig
+
 TB = byte_time_ns(300)
 THESIS = (8, 4, 9)
 # Table 4-1, typed again here so the test does not share the world's arithmetic.
@@ -41,35 +35,19 @@ def facing(global_side: int) -> int:
     return (global_side + 2) % 6 + 1
 
 
-class Rig:
+class Rig(FleetRig):
     """A booted fleet, the PC, the world's collision events and the PC's raw IR bursts."""
 
     def __init__(self, scenario, profile: str | None = None) -> None:
-        self.clock = VirtualClock()
-        self.bus = Bus(self.clock, f"irmed{next(_fleets)}", options=SessionOptions(isolated=True))
-        self.fleet = Fleet(self.bus, scenario, profile_name=profile)
-        self.pc = PcEndpoint(self.bus)
-        self.events: list[dict] = []
+        super().__init__("irmed", scenario, profile)
         self.pc_bursts: list[dict] = []
-        root = self.bus.keys.root
-        self.bus.subscribe_json(f"{root}/event/*", lambda k, d: self.events.append(d))
         self.bus.subscribe_json(self.bus.keys.ir_rx("pc"), lambda k, d: self.pc_bursts.append(d))
-        self.fleet.power_up()
-        self.run_to(BOOTED_S)
+        self.boot()
         self.pc.flush()  # the boot banners of several modules collided: end that noise
 
-    def run_to(self, seconds: float) -> None:
-        self.clock.run(until_ns=int(seconds * NS_PER_S))
-
-    def run_for(self, seconds: float) -> None:
-        self.run_to(self.clock.now_ns() / NS_PER_S + seconds)
-
     def collisions(self, since_ns: int = 0, receiver: str | None = None) -> list[dict]:
-        return [e for e in self.events if e["kind"] == "collision" and e["sim_time_ns"] >= since_ns
+        return [e for e in self.bus_events if e["kind"] == "collision" and e["sim_time_ns"] >= since_ns
                 and (receiver is None or e["receiver"] == receiver)]
-
-    def close(self) -> None:
-        self.bus.close()
 
 
 @pytest.fixture
@@ -114,7 +92,7 @@ def test_two_modules_answering_at_once_collide_and_the_pc_gets_garbage(rigs):
     anded = bytes(a & b for a, b in zip(*lines))
     assert anded not in lines
     got = rig.collisions(t0, "pc")
-    assert got, rig.events
+    assert got, rig.bus_events
     assert {tuple(e["sources"]) for e in got} == {("m1.comm", "m2.comm")}
     assert got[0]["received"] == anded.hex()  # both started at the same instant
     arrived = [b for b in rig.pc_bursts[bursts:] if b.get("type") == "burst"]

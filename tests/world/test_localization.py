@@ -13,25 +13,19 @@ reference, rotated by ``-o_r`` steps, and ``Yref = orientation - o_r (mod 6)``."
 from __future__ import annotations
 
 import dataclasses
-import itertools
 from collections import deque
 
 import pytest
 
-from bus.clock import VirtualClock
 from bus.codec import Kind
 from bus.envelope import Envelope
 from bus.functions import FunctionCode as F
 from bus.lattice import Cell
 from bus.scenario import load, loads
-from bus.session import SessionOptions
-from bus.timing import NS_PER_S, TICK_NS, localize_step_ticks
-from bus.transport import Bus
-from module_sim.fleet import Fleet
-from planner_svc.endpoint import PcEndpoint
+from bus.timing import TICK_NS, localize_step_ticks
 
-_fleets = itertools.count()
-BOOTED_S = 9.0
+from fleet_rig import BOOTED_S, FleetRig
+
 OFFSET = {1: (-1, 1), 2: (0, 1), 3: (1, 0), 4: (1, -1), 5: (0, -1), 6: (-1, 0)}  # Table 4-1
 
 
@@ -42,32 +36,15 @@ def rotate(x: int, y: int, steps: int) -> tuple[int, int]:
     return x, y
 
 
-class Rig:
+class Rig(FleetRig):
     def __init__(self, scenario, profile: str | None = None, power: bool = True) -> None:
-        self.clock = VirtualClock()
-        self.bus = Bus(self.clock, f"loc{next(_fleets)}", options=SessionOptions(isolated=True))
-        self.scenario = scenario
-        self.fleet = Fleet(self.bus, scenario, profile_name=profile)
-        self.pc = PcEndpoint(self.bus)
-        self.events: list[dict] = []
+        super().__init__("loc", scenario, profile)
         self.side: list[Envelope] = []
-        root = self.bus.keys.root
-        self.bus.subscribe_json(f"{root}/event/*", lambda k, d: self.events.append(d))
         self.bus.subscribe(self.bus.keys.frames_of("side"),
                            lambda k, p: self.side.append(Envelope.from_json(p)))
         if power:
-            self.fleet.power_up()
-            self.run_to(BOOTED_S)
+            self.boot()
             self.pc.flush()  # several modules' boot banners collided on the centre channel
-
-    def run_to(self, seconds: float) -> None:
-        self.clock.run(until_ns=int(seconds * NS_PER_S))
-
-    def run_for(self, seconds: float) -> None:
-        self.run_to(self.clock.now_ns() / NS_PER_S + seconds)
-
-    def close(self) -> None:
-        self.bus.close()
 
 
 @pytest.fixture
@@ -193,7 +170,7 @@ def test_v2_localization_of_fig_4_13_in_three_steps(rigs, case):
             if hops[there.id] == k:
                 targets.add(there.id)
         assert targets == {i for i, h in hops.items() if h == k}
-        assert not [c for c in rig.events if c["kind"] == "collision" and t0 <= c["sim_time_ns"] <= t1]
+        assert not [c for c in rig.bus_events if c["kind"] == "collision" and t0 <= c["sim_time_ns"] <= t1]
 
 
 def test_v2_two_steps_are_not_enough_and_a_fourth_changes_nothing(rigs):
@@ -276,7 +253,7 @@ def test_thesis_localize_serves_sides_2_and_3_with_fixed_messages(rigs):
              if f.kind in (Kind.BANNER, Kind.SIDE_REPORT, Kind.YREF_REPORT)]
     assert lines == [(Kind.BANNER, "LOC"), (Kind.SIDE_REPORT, 5), (Kind.YREF_REPORT, 2),
                      (Kind.BANNER, "LOC"), (Kind.SIDE_REPORT, 6), (Kind.YREF_REPORT, 0)], got
-    assert not [e for e in rig.events if e["kind"] == "collision" and e["sim_time_ns"] >= t0]
+    assert not [e for e in rig.bus_events if e["kind"] == "collision" and e["sim_time_ns"] >= t0]
     # every module acknowledges (no addressing); the reference last, S=1
     acks = [(f.view["role"], f.view["byte"]) for f in got if f.kind is Kind.ACK]
     assert sorted(acks) == sorted([("M", F.Localize)] * 3 + [("S", F.Localize)])

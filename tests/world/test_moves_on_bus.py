@@ -3,37 +3,26 @@ bits -> the world's physics -> poses and events on the bus (issue: the world).""
 
 from __future__ import annotations
 
-import itertools
 import random
 
 import pytest
 
-from bus.clock import VirtualClock
 from bus.functions import FunctionCode as F
 from bus.lattice import MOVE_RULES, Cell, Direction, MoveRule
 from bus.messages import Energy, Pose, WorldEvent
 from bus.scenario import loads
-from bus.session import SessionOptions
-from bus.timing import NS_PER_S
-from bus.transport import Bus
-from module_sim.fleet import Fleet
 from module_sim.physics import orientation_after, rotation_arguments
-from planner_svc.endpoint import PcEndpoint
 
-_fleets = itertools.count()
-BOOTED_S = 9.0  # every module has printed COMM. LISTENING by then (docs/protocol.md)
+from fleet_rig import BOOTED_S, FleetRig
+
 THESIS = (8, 4, 9)
 
 
-class Rig:
+class Rig(FleetRig):
     """A fleet, a PC endpoint and everything the world says, on one private bus."""
 
     def __init__(self, toml: str, power: bool = True) -> None:
-        self.clock = VirtualClock()
-        self.bus = Bus(self.clock, f"moves{next(_fleets)}", options=SessionOptions(isolated=True))
-        self.scenario = loads(toml)
-        self.fleet = Fleet(self.bus, self.scenario)
-        self.pc = PcEndpoint(self.bus)
+        super().__init__("moves", loads(toml))
         self.events: list[WorldEvent] = []
         self.poses: dict[str, Pose] = {}
         self.energy: list[Energy] = []
@@ -41,27 +30,15 @@ class Rig:
         self.bus.subscribe(f"{root}/world/event", lambda k, p: self.events.append(WorldEvent.from_json(p)))
         self.bus.subscribe(f"{root}/world/pose/*", self._pose)
         self.bus.subscribe(f"{root}/world/energy", lambda k, p: self.energy.append(Energy.from_json(p)))
-        self.bus_events: list[dict] = []
-        self.bus.subscribe_json(f"{root}/event/*", lambda k, d: self.bus_events.append(d))
         if power:
-            self.fleet.power_up()
-            self.run_to(BOOTED_S)
+            self.boot()
 
     def _pose(self, key: str, payload: bytes) -> None:
         p = Pose.from_json(payload)
         self.poses[p.module] = p
 
-    def run_to(self, seconds: float) -> None:
-        self.clock.run(until_ns=int(seconds * NS_PER_S))
-
-    def run_for(self, seconds: float) -> None:
-        self.run_to(self.clock.now_ns() / NS_PER_S + seconds)
-
     def kinds(self, module: str | None = None) -> list[str]:
         return [e.kind for e in self.events if module is None or e.module == module]
-
-    def close(self) -> None:
-        self.bus.close()
 
 
 def pair_toml(rule: MoveRule, om: int, os_: int, obstacles: list[Cell] = (),
