@@ -385,3 +385,52 @@ def test_walk_reference_counts_paths_through_start_and_goal_cells():
     for problem in (random_sparse_problem(30, 1), random_problem(30, 2)):
         assert walk_reference(problem.initial, problem.goal) >= assignment_lower_bound(
             problem.initial, problem.goal)
+
+
+# --- advances (electrons brought nearer far voids along the surface) ---------------------------
+def test_surface_field_goes_around_the_structure():
+    wall = {(x, 0) for x in range(-5, 6)}
+    field = complete.surface_field(wall, {(0, 1)})
+    dist = complete.surface_distance(field)
+    assert field[(0, 1)] == 0
+    assert all(any(n in wall for n in neighbours_xy(c)) for c in field)   # on the surface
+    # Two cells apart through the wall, around one of its ends along the surface.
+    assert hex_distance((0, -1), (0, 1)) == 2 and field[(0, -1)] >= 10
+    assert dist((0, 0)) == 1                   # a module counts from its free side
+    assert dist((40, 40)) == complete.FAR
+
+
+def test_local_advance_plans_are_legal_and_bring_electrons_nearer():
+    rng = random.Random(11)
+    found = 0
+    for _ in range(40):
+        occ = random_blob(40, rng)
+        rim = sorted({n for c in occ for n in neighbours_xy(c)} - occ)
+        e = rng.choice(sorted(c for c in occ if c != (0, 0)))
+        far = [v for v in rim if hex_distance(v, e) >= 6]
+        if not far:
+            continue
+        v = rng.choice(far)
+        goal = (occ - {e}) | {v}
+        if not is_connected(goal):
+            continue
+        dist = complete.surface_distance(complete.surface_field(occ, {v}))
+        if dist(e) >= complete.FAR:
+            continue
+        path = complete.local_advance(occ, goal, (0, 0), set(), e, 4, 1500, dist, set())
+        if path is None:
+            continue
+        cur = set(occ)
+        steps = complete.play(cur, path)
+        validate(steps, occ, None, (0, 0))              # every rotation legal, connected
+        assert cur & goal == occ & goal                 # no goal cell emptied
+        (moved,) = cur - goal
+        assert dist(moved) <= dist(e) - complete.ADVANCE_GAIN
+        found += 1
+    assert found >= 10
+
+
+def test_advances_finish_a_scrambled_blob_of_1000_modules():
+    # Before advances the relays, exchanges and digging stopped 4 voids short here:
+    # the electrons left were walled in 6-14 cells from the voids.
+    _check(random_scrambled_problem(1000, 0))
