@@ -53,7 +53,7 @@ of the surface. Material still flows by *relays*:
    search (:func:`local_advance`) lets settled modules step aside so electrons pass a
    notch. Parked electrons pave the rough surface for the next ones, until relays and
    exchanges take over (a scrambled blob of 1000 modules: solved, 689 moves in about
-   6 s, where the heuristic stopped 4 voids short; Eden blobs of 1000: 16 voids left
+   6 s, where the heuristic stopped 4 voids short; Eden blobs of 1000: 19 voids left
    instead of 48). On smaller fleets the smoothed shapes below do better;
 6. failing that, a small best-first search in a window around a blocked void (or
    trapped electron) may move settled modules out and back (:func:`local_repair`),
