@@ -93,6 +93,7 @@ import functools
 import heapq
 import itertools
 from collections import deque
+from typing import Callable
 
 from bus.lattice import NEIGHBOUR_OFFSET, Cell, Side
 
@@ -1585,7 +1586,7 @@ def surface_field(occ: set[Coord], voids: set[Coord],
     return field
 
 
-def surface_distance(field: dict[Coord, int]):
+def surface_distance(field: dict[Coord, int]) -> Callable[[Coord], int]:
     """``cell -> distance`` over a :func:`surface_field`; an occupied cell counts from its
     nearest free neighbour, a cell out of the field is :data:`FAR`."""
     def dist(c: Coord) -> int:
@@ -1596,7 +1597,7 @@ def surface_distance(field: dict[Coord, int]):
 
 
 def local_advance(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set[Coord],
-                  centre: Coord, radius: int, budget: int, dist,
+                  centre: Coord, radius: int, budget: int, dist: Callable[[Coord], int],
                   seen: set[frozenset[Coord]]) -> Path | None:
     """Best-first search, inside a window of ``radius`` around the electron at
     ``centre``, for rotations that bring the window's electrons :data:`ADVANCE_GAIN`
