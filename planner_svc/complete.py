@@ -1357,8 +1357,9 @@ class _Heuristic(_Phase):
         where it is and seals no void; else a window search (:func:`local_advance`) lets
         settled modules step aside and back so electrons pass a notch. Parked electrons
         pave the rough surface, so the next ones roll further; once near a void, the
-        relays and exchanges fill it. Each advance lowers the electrons' distances and no
-        configuration repeats, so advancing ends.
+        relays and exchanges fill it. No advance repeats a configuration and the window
+        searches are budgeted (:data:`ADVANCE_CALLS` per new low of voids left), so
+        advancing ends.
         """
         occ, goal, ob = self.occ, self.goal, self.obstacles
         voids = goal - occ
@@ -1373,10 +1374,7 @@ class _Heuristic(_Phase):
             for c, (d, _, _) in bfs(rest, e, ob).items():
                 if c in goal or dist(c) >= here or (best and (dist(c), d) >= best[:2]):
                     continue
-                after = rest | {c}
-                if frozenset(after) in self.seen or any(
-                        w in voids and not enterable(after, w, ob) and enterable(rest, w, ob)
-                        for w in ring2(c)):
+                if frozenset(rest | {c}) in self.seen or self._sealed_by(c, rest):
                     continue
                 best = (dist(c), d, e, c)
         if best is not None:
@@ -1386,8 +1384,9 @@ class _Heuristic(_Phase):
                 self._do_walk(path)
                 return True
         radius, budget = ADVANCE_WINDOW
+        here = frozenset(occ)
         for e in sorted(occ - goal, key=lambda c: (dist(c), c)):
-            key = (e, frozenset(occ))
+            key = (e, here)
             if dist(e) >= FAR or key in self.advance_failed:
                 continue
             if self.advance_budget <= 0:

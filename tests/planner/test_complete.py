@@ -343,22 +343,27 @@ def test_scrambled_instances_reach_the_goal(n, seed):
     _check(random_scrambled_problem(n, seed))
 
 
-# --- local exchange (a walled-in electron trades places with a void a few cells away) -----------
-def test_local_exchange_plans_are_legal_and_trade_one_electron_for_one_void():
-    rng = random.Random(3)
-    found = 0
-    for _ in range(40):
+def _one_module_moved(rng, count, apart):
+    """Random blobs of 40 modules, each with a goal that moves one module (not the fixed
+    one) to a free cell next to the blob at a hex distance ``d`` from it with ``apart(d)``:
+    ``(start, electron, void, goal)`` for those whose goal is connected."""
+    for _ in range(count):
         occ = random_blob(40, rng)
-        inner = sorted(c for c in occ if c != (0, 0))
-        e = rng.choice(inner)
+        e = rng.choice(sorted(c for c in occ if c != (0, 0)))
         rim = sorted({n for c in occ for n in neighbours_xy(c)} - occ)
-        near = [v for v in rim if 2 <= hex_distance(v, e) <= 4]
+        near = [v for v in rim if apart(hex_distance(v, e))]
         if not near:
             continue
         v = rng.choice(near)
         goal = (occ - {e}) | {v}
-        if not is_connected(goal):
-            continue
+        if is_connected(goal):
+            yield occ, e, v, goal
+
+
+# --- local exchange (a walled-in electron trades places with a void a few cells away) -----------
+def test_local_exchange_plans_are_legal_and_trade_one_electron_for_one_void():
+    found = 0
+    for occ, e, v, goal in _one_module_moved(random.Random(3), 40, lambda d: 2 <= d <= 4):
         path = complete.local_exchange(occ, goal, (0, 0), set(), v, 4, 1000)
         if path is None:
             continue
@@ -401,19 +406,8 @@ def test_surface_field_goes_around_the_structure():
 
 
 def test_local_advance_plans_are_legal_and_bring_electrons_nearer():
-    rng = random.Random(11)
     found = 0
-    for _ in range(40):
-        occ = random_blob(40, rng)
-        rim = sorted({n for c in occ for n in neighbours_xy(c)} - occ)
-        e = rng.choice(sorted(c for c in occ if c != (0, 0)))
-        far = [v for v in rim if hex_distance(v, e) >= 6]
-        if not far:
-            continue
-        v = rng.choice(far)
-        goal = (occ - {e}) | {v}
-        if not is_connected(goal):
-            continue
+    for occ, e, v, goal in _one_module_moved(random.Random(11), 40, lambda d: d >= 6):
         dist = complete.surface_distance(complete.surface_field(occ, {v}))
         if dist(e) >= complete.FAR:
             continue
