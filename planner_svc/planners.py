@@ -142,7 +142,12 @@ def _exact(plan: Plan) -> None:
 
 def _complete(plan: Plan) -> None:
     from .complete import plan_complete
+    from .shorten import shorten
     plan_complete(plan)
+    saved = shorten(plan)
+    if saved:
+        plan.notes.append(f"shortened by {saved} moves (configuration loops, step-aside "
+                          "returns dropped)")
 
 
 PLANNERS: dict[str, FunctionPlanner] = {
@@ -156,7 +161,8 @@ PLANNERS: dict[str, FunctionPlanner] = {
                         "proves unreachability within its search region", _exact),
         FunctionPlanner("complete", "electrons walk the surface to voids (pocket-safe fill "
                         "order, reverse-problem retry); exact search finishes small stuck "
-                        "cases; large stuck cases are reported, not claimed unreachable",
+                        "cases; large stuck cases are reported, not claimed unreachable; detours "
+                        "dropped from the plan",
                         _complete),
     )
 }

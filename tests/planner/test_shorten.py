@@ -1,0 +1,79 @@
+"""Plan shortening: the shortened plan is legal, ends where the original ended, and is
+shorter whenever the original wandered."""
+
+import random
+
+from planner_svc import complete, planners
+from planner_svc.bounds import random_blob, random_problem, scramble
+from planner_svc.plan import Plan, Problem, validate
+from planner_svc.rules import xy
+from planner_svc.shorten import drop_loops, drop_returns, legal, shorten
+
+
+def _random_walk_plan(n: int, moves: int, seed: int) -> Plan:
+    """A legal plan of ``moves`` random rotations on a random blob of ``n`` modules."""
+    rng = random.Random(seed)
+    start = random_blob(n, rng)
+    end, path = scramble(start, moves, rng)
+    plan = Plan("random-walk", Problem.of(start, end, (0, 0)))
+    plan.steps = complete.play(set(start), path)
+    plan.ok = True
+    return plan
+
+
+def _end(plan: Plan) -> set:
+    return {xy(c) for c in plan.configurations()[-1]}
+
+
+def test_shortened_random_walks_are_legal_end_in_place_and_shorter():
+    saved = 0
+    for seed in range(12):
+        plan = _random_walk_plan(30, 120, seed)
+        before, end = plan.moves, _end(plan)
+        got = shorten(plan)
+        validate(plan)                                  # every move legal, ends in the goal
+        assert _end(plan) == end
+        assert plan.moves == before - got
+        saved += got
+    # Random walks step back and forth all the time: a lot must go.
+    assert saved > 12 * 120 // 4
+
+
+def test_a_configuration_loop_is_cut_out():
+    a, b, c = (1, 0), (2, 0), (3, 0)
+    # Whatever the moves, returning to the start configuration leaves nothing between.
+    hops = [(a, b), (b, c), (c, b), (b, a), (a, b)]
+    assert drop_loops({(0, 0), a}, hops) == [(a, b)]
+
+
+def test_returns_that_moves_in_between_need_stay():
+    # On a crowded random walk some step-aside-and-back pairs are needed (a module in
+    # between pivots on the one that stepped aside, or passes where it would wait):
+    # those stay, and every hop kept is legal where it now stands.
+    plan = _random_walk_plan(12, 300, 99)
+    hops = [(xy(s[0].mobile), xy(s[0].goal)) for s in plan.steps]
+    start = {xy(c) for c in plan.problem.initial}
+    kept = drop_returns(start, hops, (0, 0), frozenset())
+    returns = sum(1 for i, (a, b) in enumerate(kept)
+                  for m, g in [next(((m, g) for m, g in kept[i + 1:] if m == b), (None, None))]
+                  if g == a)
+    assert 0 < returns and len(kept) < len(hops)
+    occ = set(start)
+    for m, g in kept:
+        assert legal(occ, m, g, (0, 0), frozenset()) is not None, (m, g)
+        occ.discard(m)
+        occ.add(g)
+    assert occ == _end(plan)
+
+
+def test_complete_plans_come_out_shortened_and_legal():
+    # A dug plan (Eden blob of 40 modules, seed 2): digging peels a crater and puts it
+    # back, and the window searches step modules aside and back; many of those go.
+    problem = random_problem(40, 2)
+    raw = Plan("complete", problem)
+    complete.plan_complete(raw)
+    plan = planners.get("complete").plan(problem)
+    validate(plan)
+    assert raw.ok and plan.ok
+    assert plan.moves <= raw.moves - 20
+    assert f"shortened by {raw.moves - plan.moves} moves" in " ".join(plan.notes)
