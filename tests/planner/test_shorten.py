@@ -7,7 +7,7 @@ from planner_svc import complete, planners
 from planner_svc.bounds import random_blob, random_problem, scramble
 from planner_svc.plan import Plan, Problem, validate
 from planner_svc.rules import xy
-from planner_svc.shorten import drop_loops, drop_returns, legal, shorten
+from planner_svc.shorten import drop_loops, drop_round_trips, legal, shorten
 
 
 def _random_walk_plan(n: int, moves: int, seed: int) -> Plan:
@@ -46,14 +46,33 @@ def test_a_configuration_loop_is_cut_out():
     assert drop_loops({(0, 0), a}, hops) == [(a, b)]
 
 
-def test_returns_that_moves_in_between_need_stay():
+def test_a_long_round_trip_goes_when_nothing_needs_it():
+    # Line (0,0)-(1,0)-(2,0); the end module walks around its neighbour and back while
+    # nobody else moves: the whole trip goes, however long.
+    start = {(0, 0), (1, 0), (2, 0)}
+    trip, occ, cur = [], set(start), (2, 0)
+    for _ in range(3):                      # three steps to new cells around the line
+        occ.discard(cur)
+        g = next(g for _, g in complete.lone_steps(occ, cur, set())
+                 if g not in start and all(g != b for _, b in trip))
+        occ.add(cur)
+        trip.append((cur, g))
+        occ.discard(cur)
+        occ.add(g)
+        cur = g
+    back = [(g, a) for a, g in reversed(trip)]
+    assert len({g for _, g in trip}) == 3
+    assert drop_round_trips(start, trip + back, (0, 0), frozenset()) == []
+
+
+def test_round_trips_that_moves_in_between_need_stay():
     # On a crowded random walk some step-aside-and-back pairs are needed (a module in
     # between pivots on the one that stepped aside, or passes where it would wait):
     # those stay, and every hop kept is legal where it now stands.
     plan = _random_walk_plan(12, 300, 99)
     hops = [(xy(s[0].mobile), xy(s[0].goal)) for s in plan.steps]
     start = {xy(c) for c in plan.problem.initial}
-    kept = drop_returns(start, hops, (0, 0), frozenset())
+    kept = drop_round_trips(start, hops, (0, 0), frozenset())
     returns = sum(1 for i, (a, b) in enumerate(kept)
                   for m, g in [next(((m, g) for m, g in kept[i + 1:] if m == b), (None, None))]
                   if g == a)
