@@ -82,33 +82,47 @@ def drop_round_trips(initial: set[Coord], hops: list[Hop], fixed: Coord,
     move in between is still legal with it waiting there."""
     n = len(hops)
     # The index of the next move of the module a move brings to its goal cell (it is
-    # the next move out of that cell).
+    # the next move out of that cell), and of the move that first brings that module
+    # back to the cell it left (one backward pass per module).
     nxt: list[int | None] = [None] * n
     first_out: dict[Coord, int] = {}
     for i in range(n - 1, -1, -1):
         a, b = hops[i]
         nxt[i] = first_out.get(b)
         first_out[a] = i
+    back: list[int | None] = [None] * n
+    followed = set(k for k in nxt if k is not None)
+    for first in range(n):
+        if first in followed:       # not the first move of its module
+            continue
+        chain = []
+        k: int | None = first
+        while k is not None:
+            chain.append(k)
+            k = nxt[k]
+        arrives: dict[Coord, int] = {}
+        for k in reversed(chain):
+            back[k] = arrives.get(hops[k][0])
+            arrives[hops[k][1]] = k
     gone = [False] * n
     occ = set(initial)              # the configuration before hops[i], trips dropped
     for i in range(n):
         if gone[i]:
             continue
         a, b = hops[i]
-        trip, j = [i], nxt[i]
-        while j is not None and j - i <= RETURN_SPAN:
-            trip.append(j)
-            if hops[j][1] == a:
-                mine = set(trip)
-                between = [hops[k] for k in range(i + 1, j) if not gone[k] and k not in mine]
-                if _still_legal(occ, between, fixed, obstacles):
-                    for k in trip:
-                        gone[k] = True
-                break
-            j = nxt[j]
-        if not gone[i]:
-            occ.discard(a)
-            occ.add(b)
+        end = back[i]
+        if end is not None and end - i <= RETURN_SPAN:
+            trip = [i]
+            while trip[-1] != end:
+                trip.append(nxt[trip[-1]])
+            mine = set(trip)
+            between = [hops[k] for k in range(i + 1, end) if not gone[k] and k not in mine]
+            if _still_legal(occ, between, fixed, obstacles):
+                for k in trip:
+                    gone[k] = True
+                continue
+        occ.discard(a)
+        occ.add(b)
     return [h for h, g in zip(hops, gone) if not g]
 
 
