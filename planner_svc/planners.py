@@ -144,10 +144,7 @@ def _complete(plan: Plan) -> None:
     from .complete import plan_complete
     from .shorten import shorten
     plan_complete(plan)
-    saved = shorten(plan)
-    if saved:
-        plan.notes.append(f"shortened by {saved} moves (configuration loops, step-aside "
-                          "returns dropped)")
+    shorten(plan)       # what plan_complete has not shortened yet
 
 
 PLANNERS: dict[str, FunctionPlanner] = {

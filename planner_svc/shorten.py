@@ -161,7 +161,8 @@ def rebuild(initial: set[Coord], hops: list[Hop], fixed: Coord,
 
 
 def shorten(plan: Plan) -> int:
-    """Shorten the serial ``plan`` in place; returns the moves it saved."""
+    """Shorten the finished serial ``plan`` in place (and say so in its notes); returns
+    the moves it saved."""
     p = plan.problem
     if not plan.ok or any(len(step) != 1 for step in plan.steps):
         return 0
@@ -181,4 +182,6 @@ def shorten(plan: Plan) -> int:
     if steps is None:
         return 0
     plan.steps = steps
+    plan.notes.append(f"shortened by {before - len(hops)} moves (configuration loops and "
+                      "round trips dropped)")
     return before - len(hops)
