@@ -76,7 +76,7 @@ the goal, until every hole cell has been peeled -- then played for real: the cra
 peels forward, then the whole peel backwards (every move is reversible), with an
 electron (or a waiting crater module, leaving a surface void) taking each hole cell.
 Each walk is re-searched on the current structure; a fill that fails is rolled back.
-These plans are long (Eden blobs of 100 modules: up to 8x the bound, 4.8x once
+These plans are long (Eden blobs of 100 modules: up to 8x the bound, 4.7x once
 :mod:`planner_svc.shorten` has dropped their detours) but reach the goal.
 On fleets of :data:`SMOOTH_LIMIT` modules or fewer the same is also tried between
 *smoothed* shapes (:func:`smoothed_plan`): the notches of the start and of the goal are
@@ -817,8 +817,19 @@ def plan_complete(plan: Plan, exact_limit: int = EXACT_LIMIT) -> None:
 
     If the heuristic gets stuck going forwards, it also tries the reverse problem
     (goal to initial) and plays that plan backwards, since every move is reversible.
+    The plan is then shortened (:mod:`planner_svc.shorten`), unless it is made of lone
+    walks only (phases 0 and 1): each electron walks once, along a shortest path, to a
+    void it keeps, so no module comes back to a cell and no configuration recurs
+    (on the 5e5 moves of a tree of 1000 modules it would spend 1 s finding nothing).
     """
     # Imported here: shorten uses this module's move primitives.
+    from .shorten import shorten
+    if not _plan_phases(plan, exact_limit):
+        shorten(plan)
+
+
+def _plan_phases(plan: Plan, exact_limit: int) -> bool:
+    """The phases of :func:`plan_complete`; True if the plan is lone walks only."""
     from .shorten import shorten
 
     def shortest(a: Plan, b: Plan) -> int:
@@ -842,14 +853,15 @@ def plan_complete(plan: Plan, exact_limit: int = EXACT_LIMIT) -> None:
         front.ok = _FrontWalk(front, {xy(c) for c in p.initial}).run()
         if front.ok and not small:
             plan.steps, plan.ok = front.steps, True
-            return
+            return True
     # Phase 1, assigned walks alone, solves sparse shapes quickly and near the bound. When
     # it cannot finish, the relay heuristic from the start (better on compact shapes) is
     # tried, then the relay heuristic carrying on from where phase 1 stopped.
     first = Plan(plan.planner, p)
     occ = {xy(c) for c in p.initial}
     _AssignWalk(first, occ).run()
-    if occ == {xy(c) for c in p.goal}:
+    walked = occ == goal
+    if walked:
         first.ok = True
         forward = first
         if len(p.goal) <= COMPARE_LIMIT:        # cheap at this size: keep the shorter
@@ -876,7 +888,7 @@ def plan_complete(plan: Plan, exact_limit: int = EXACT_LIMIT) -> None:
             plan.steps = reverse_steps(backward, p)
             plan.ok = True
             plan.notes.append("forward heuristic stuck; the reverse problem's plan played backwards")
-            return
+            return False
     if not forward.ok:
         # Last resort: the relays again, now digging holes open and filling them
         # (:meth:`_Heuristic._hole_step`; long plans, but they reach the goal).
@@ -892,17 +904,19 @@ def plan_complete(plan: Plan, exact_limit: int = EXACT_LIMIT) -> None:
             plan.notes += smoothed.notes
             plan.notes.append("relays stuck; start and goal smoothed (notches filled), "
                               "holes dug open and refilled")
-            return
+            return False
         if dug.ok:
             plan.steps, plan.ok = dug.steps, True
             plan.notes += dug.notes
             plan.notes.append("relays stuck; holes dug open and refilled")
-            return
+            return False
     plan.steps, plan.ok, plan.reason = forward.steps, forward.ok, forward.reason
     plan.notes += forward.notes
     if not forward.ok:
         occ = {xy(c) for c in forward.configurations()[-1]}
         _finish_small(plan, occ, exact_limit)
+        return False
+    return forward is front or (forward is first and walked)
 
 
 def reverse_steps(plan: Plan, problem: Problem) -> list[list[Move]]:

@@ -142,9 +142,7 @@ def _exact(plan: Plan) -> None:
 
 def _complete(plan: Plan) -> None:
     from .complete import plan_complete
-    from .shorten import shorten
     plan_complete(plan)
-    shorten(plan)       # what plan_complete has not shortened yet
 
 
 PLANNERS: dict[str, FunctionPlanner] = {

@@ -25,7 +25,7 @@ from .plan import Plan
 from .rules import Coord, Move, MoveRule, to_move, xy
 
 #: Moves a round trip may span (the moves in between are rechecked).
-RETURN_SPAN = 400
+RETURN_SPAN = 2000
 #: Rounds of both rewrites at most: dropping a trip can free the one around it, so
 #: rounds repeat until one changes nothing (Eden blob of 100 modules: 13 rounds).
 ROUNDS = 100

@@ -12,7 +12,7 @@ last the goal is the start scrambled:
   relays and local exchanges of ``complete`` stall on the instances of 100 and 1000
   modules; its last resort, hole digging (planned peels played forward and back),
   also between smoothed shapes (notches of start and goal filled first), solves the
-  three of 100 modules (2.6-4.8x the bound once shortened, mean 3.4x, 10-20 s) but not
+  three of 100 modules (2.6-4.7x the bound once shortened, mean 3.4x, 11-20 s) but not
   yet the one of 1000 (advances bring it to 19 voids left of 132, after about 2
   minutes).
 * **sparse**: random trees (:func:`random_sparse_problem`) in which no module has
@@ -28,7 +28,7 @@ last the goal is the start scrambled:
   rotations (:func:`random_scrambled_problem`): reachable by construction, so this
   family measures completeness. The random walkers leave thin tendrils and sometimes
   seal a pocket (an electron walled in), which must be reopened. Solved at 1000 modules since
-  electrons advance along the surface towards far voids (2.6x the bound once shortened,
+  electrons advance along the surface towards far voids (2.5x the bound once shortened,
   about 6.5 s).
 
 Each instance also gets a *walk reference*
