@@ -822,23 +822,26 @@ def plan_complete(plan: Plan, exact_limit: int = EXACT_LIMIT) -> None:
     void it keeps, so no module comes back to a cell and no configuration recurs
     (on the 5e5 moves of a tree of 1000 modules it would spend 1 s finding nothing).
     """
-    # Imported here: shorten uses this module's move primitives.
-    from .shorten import shorten
     if not _plan_phases(plan, exact_limit):
-        shorten(plan)
+        _shorten(plan)
+
+
+def _shorten(plan: Plan) -> int:
+    # Imported here: planner_svc.shorten uses this module's move primitives.
+    from .shorten import shorten
+    return shorten(plan)
+
+
+def shortest(a: Plan, b: Plan) -> int:
+    """Moves of ``a`` minus those of ``b``, both shortened first: candidate plans are
+    compared as they will be played."""
+    _shorten(a)
+    _shorten(b)
+    return a.moves - b.moves
 
 
 def _plan_phases(plan: Plan, exact_limit: int) -> bool:
     """The phases of :func:`plan_complete`; True if the plan is lone walks only."""
-    from .shorten import shorten
-
-    def shortest(a: Plan, b: Plan) -> int:
-        """Moves of ``a`` minus those of ``b``, both shortened first (candidates are
-        compared as they will be played)."""
-        shorten(a)
-        shorten(b)
-        return a.moves - b.moves
-
     p: Problem = plan.problem
     goal = {xy(c) for c in p.goal}
     small = len(goal) <= COMPARE_LIMIT
@@ -855,8 +858,8 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
             plan.steps, plan.ok = front.steps, True
             return True
     # Phase 1, assigned walks alone, solves sparse shapes quickly and near the bound. When
-    # it cannot finish, the relay heuristic from the start (better on compact shapes) is
-    # tried, then the relay heuristic carrying on from where phase 1 stopped.
+    # it cannot finish, the relay heuristic runs from the start (better on compact shapes)
+    # and from where phase 1 stopped.
     first = Plan(plan.planner, p)
     occ = {xy(c) for c in p.initial}
     _AssignWalk(first, occ).run()
