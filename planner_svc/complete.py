@@ -832,7 +832,7 @@ def _shorten(plan: Plan) -> int:
     return shorten(plan)
 
 
-def shortest(a: Plan, b: Plan) -> int:
+def _shortened_difference(a: Plan, b: Plan) -> int:
     """Moves of ``a`` minus those of ``b``, both shortened first: candidate plans are
     compared as they will be played."""
     _shorten(a)
@@ -870,7 +870,7 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
         if len(p.goal) <= COMPARE_LIMIT:        # cheap at this size: keep the shorter
             relay = Plan(plan.planner, p)
             _Heuristic(relay).run()
-            if relay.ok and shortest(relay, first) < 0:
+            if relay.ok and _shortened_difference(relay, first) < 0:
                 forward = relay
     else:
         forward = Plan(plan.planner, p)
@@ -880,9 +880,9 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
         # on large fleets it only runs when needed (the time target).
         if not forward.ok or len(goal) <= SMOOTH_LIMIT:
             _Heuristic(first, start=occ, advance=advance).run()
-            if first.ok and (not forward.ok or shortest(first, forward) < 0):
+            if first.ok and (not forward.ok or _shortened_difference(first, forward) < 0):
                 forward = first
-    if front is not None and front.ok and (not forward.ok or shortest(front, forward) <= 0):
+    if front is not None and front.ok and (not forward.ok or _shortened_difference(front, forward) <= 0):
         forward = front
     if not forward.ok:
         backward = Plan(plan.planner, Problem(p.goal, p.initial, p.fixed, p.obstacles, p.name))
@@ -902,7 +902,7 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
         # two of three seeds); the shorter plan is kept.
         smoothed = Plan(plan.planner, p)
         if len(goal) <= SMOOTH_LIMIT and smoothed_plan(smoothed) and (
-                not dug.ok or shortest(smoothed, dug) < 0):
+                not dug.ok or _shortened_difference(smoothed, dug) < 0):
             plan.steps, plan.ok = smoothed.steps, True
             plan.notes += smoothed.notes
             plan.notes.append("relays stuck; start and goal smoothed (notches filled), "
