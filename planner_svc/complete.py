@@ -882,7 +882,8 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
             _Heuristic(first, start=occ, advance=advance).run()
             if first.ok and (not forward.ok or _shortened_difference(first, forward) < 0):
                 forward = first
-    if front is not None and front.ok and (not forward.ok or _shortened_difference(front, forward) <= 0):
+    if front is not None and front.ok and (
+            not forward.ok or _shortened_difference(front, forward) <= 0):
         forward = front
     if not forward.ok:
         backward = Plan(plan.planner, Problem(p.goal, p.initial, p.fixed, p.obstacles, p.name))
