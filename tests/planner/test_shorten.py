@@ -7,8 +7,8 @@ from planner_svc import complete, planners
 from planner_svc import shorten as shorten_module
 from planner_svc.bounds import random_blob, random_problem, scramble
 from planner_svc.plan import Plan, Problem, validate
-from planner_svc.rules import xy
-from planner_svc.shorten import drop_loops, drop_round_trips, legal, shorten
+from planner_svc.rules import neighbours_xy, xy
+from planner_svc.shorten import drop_loops, drop_round_trips, legal, rebuild, shorten
 
 
 def _random_walk_plan(n: int, moves: int, seed: int) -> Plan:
@@ -38,6 +38,37 @@ def test_shortened_random_walks_are_legal_end_in_place_and_shorter():
         saved += got
     # Random walks step back and forth all the time: a lot must go.
     assert saved > 12 * 120 // 4
+
+
+def test_shortened_walks_among_obstacles_stay_legal():
+    # Random walks among obstacles (a third of the free cells around a blob): the
+    # shortened plan keeps to the rows the obstacles allow and still ends in place.
+    saved = 0
+    for seed in range(8):
+        rng = random.Random(seed)
+        start = random_blob(20, rng)
+        rim = sorted({n for c in start for n in neighbours_xy(c)} - start)
+        obstacles = set(rng.sample(rim, len(rim) // 3))
+        occ, hops = set(start), []
+        while len(hops) < 150:
+            m = rng.choice(sorted(occ))
+            steps = [g for _, g in complete.lone_steps(occ, m, obstacles)]
+            if not steps:
+                continue
+            g = rng.choice(steps)
+            if legal(occ, m, g, (0, 0), obstacles) is None:
+                continue
+            hops.append((m, g))
+            occ.discard(m)
+            occ.add(g)
+        plan = Plan("random-walk", Problem.of(start, occ, (0, 0), obstacles))
+        plan.steps = rebuild(start, hops, (0, 0), frozenset(obstacles))
+        plan.ok = True
+        validate(plan)
+        saved += shorten(plan)
+        validate(plan)
+        assert _end(plan) == occ
+    assert saved > 0
 
 
 def test_a_configuration_loop_is_cut_out():
