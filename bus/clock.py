@@ -55,6 +55,10 @@ class Clock(ABC):
         self._stopped = False
         self.error: BaseException | None = None
         self.started_ns = 0  # now_ns() when the clock was made (wall clocks: Unix time)
+        # Samples published to local subscribers but not yet posted. zenoh runs each
+        # subscriber's callback on its own thread, so a busy one (a recorder's, which takes
+        # everything) can lag behind the others: only this count says when all caught up.
+        self._in_flight = 0
 
     # -- time -----------------------------------------------------------------------
     @abstractmethod
@@ -88,9 +92,16 @@ class Clock(ABC):
     # -- delivery barrier (used by bus.transport.Bus) --------------------------------------
     def expect(self, n: int) -> None:
         """``n`` more samples are on their way to local subscribers."""
+        if n:
+            with self._lock:
+                self._in_flight += n
 
     def delivered(self) -> None:
         """One expected sample has been posted."""
+        with self._lock:
+            self._in_flight -= 1
+            if self._in_flight <= 0:
+                self._lock.notify_all()
 
     def post_delivered(self, fn: Callable[..., Any], args: tuple[Any, ...],
                        order: tuple[float, int]) -> None:
@@ -124,6 +135,12 @@ class Clock(ABC):
         """Process events until ``until()`` holds, time passes ``until_ns``, nothing is
         left to do (virtual), ``stop()`` is called, or ``timeout_s`` wall seconds pass."""
 
+    @abstractmethod
+    def drain(self, timeout_s: float = 5.0) -> bool:
+        """Handle every sample published so far to local subscribers, and whatever their
+        handlers publish in turn, without running timers. False if some were still on their
+        way after ``timeout_s`` wall seconds. Call it before closing a recorder."""
+
 
 class VirtualClock(Clock):
     kind = "virtual"
@@ -131,7 +148,6 @@ class VirtualClock(Clock):
     def __init__(self, *, barrier_timeout_s: float = 30.0) -> None:
         super().__init__()
         self._now = 0
-        self._in_flight = 0
         self._barrier_timeout_s = barrier_timeout_s
         self.events_run = 0
 
@@ -149,17 +165,6 @@ class VirtualClock(Clock):
 
     def call_later(self, delay_ns: int, fn: Callable[..., Any], *args: Any) -> Timer:
         return self.call_at(self._now + int(delay_ns), fn, *args)
-
-    def expect(self, n: int) -> None:
-        if n:
-            with self._lock:
-                self._in_flight += n
-
-    def delivered(self) -> None:
-        with self._lock:
-            self._in_flight -= 1
-            if self._in_flight <= 0:
-                self._lock.notify_all()
 
     def post_delivered(self, fn: Callable[..., Any], args: tuple[Any, ...],
                        order: tuple[float, int]) -> None:
@@ -192,6 +197,10 @@ class VirtualClock(Clock):
                 self._inbox.clear()
             for _, fn, args in batch:
                 self._fire(fn, args)
+
+    def drain(self, timeout_s: float = 5.0) -> bool:
+        self._settle()  # the barrier has its own timeout (an error: samples went missing)
+        return True
 
     def run(self, *, until_ns: int | None = None, until: Callable[[], bool] | None = None,
             timeout_s: float | None = None) -> None:
@@ -241,6 +250,22 @@ class WallClock(Clock):
     def now_ns(self) -> int:
         """Unix time in ns, advanced monotonically (the same in every process)."""
         return time.monotonic_ns() + self._offset
+
+    def drain(self, timeout_s: float = 5.0) -> bool:
+        deadline = time.monotonic() + timeout_s
+        while True:
+            with self._lock:
+                while self._in_flight > 0:
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        return False
+                    self._lock.wait(left)
+                batch = self._inbox
+                self._inbox = []
+            if not batch:
+                return True
+            for _, fn, args in batch:
+                self._fire(fn, args)
 
     def run(self, *, until_ns: int | None = None, until: Callable[[], bool] | None = None,
             timeout_s: float | None = None) -> None:

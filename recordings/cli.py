@@ -107,6 +107,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         pass
     finally:
+        clock.drain(timeout_s=1.0)  # samples already received but not yet written
         tally = rec.close()
         bus.close()
     links = ", ".join(f"{k} {n}" for k, n in sorted(tally.frames_by_link.items())) or "none"

@@ -73,6 +73,29 @@ def test_wall_clock_runs_posted_work_and_timers():
     assert seen == ["post", "timer"] and clock.now_ns() >= 20_000_000
 
 
+def test_wall_clock_drain_handles_every_local_sample_published_so_far():
+    """zenoh calls each subscriber on its own thread: a subscriber to everything (a recorder)
+    can lag behind one to a single key. ``drain`` waits for it; a timer is not run."""
+    clock = WallClock()
+    bus = Bus(clock, "drain", options=SessionOptions(isolated=True))
+    try:
+        everything, last = [], []
+        bus.subscribe(bus.keys.all, lambda k, p: everything.append(p))
+        bus.subscribe(bus.keys.root + "/x/last", lambda k, p: last.append(p))
+        fired = []
+        clock.call_later(10**12, fired.append, "timer")
+        # a handler that publishes again: drain handles that sample too
+        bus.subscribe(bus.keys.root + "/x/echo", lambda k, p: bus.put(bus.keys.root + "/x/last", p))
+        for i in range(3000):
+            bus.put(f"{bus.keys.root}/x/{i % 7}", str(i).encode())
+        bus.put(bus.keys.root + "/x/echo", b"end")
+        assert clock.drain(timeout_s=20)
+        assert len(everything) == 3002 and everything[-1] == b"end"
+        assert last == [b"end"] and not fired
+    finally:
+        bus.close()
+
+
 def test_two_processes_with_default_options_find_each_other(tmp_path):
     """The default session: the first process listens on the well-known loopback endpoint,
     the second connects to it."""
