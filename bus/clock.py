@@ -266,6 +266,8 @@ class WallClock(Clock):
                 return True
             for _, fn, args in batch:
                 self._fire(fn, args)
+            if time.monotonic() > deadline:  # a stream from elsewhere never runs dry
+                return False
 
     def run(self, *, until_ns: int | None = None, until: Callable[[], bool] | None = None,
             timeout_s: float | None = None) -> None:
