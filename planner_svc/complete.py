@@ -148,6 +148,8 @@ REPAIR_WEIGHT = 3
 #: most voids per hole, peels per hole beyond its cells, least distance of a parking
 #: cell from the aimed hole cell, electrons tried per hole cell, modules tried per peel.
 HOLE_CALLS = 24
+#: Digs on the smoothed shapes of fleets over SMOOTH_LIMIT modules (the last resort there).
+HOLE_CALLS_LARGE = 100
 HOLE_MAX = 12
 HOLE_PEELS = 80
 HOLE_PARK = 3
@@ -160,6 +162,11 @@ HOLE_TRY = 30
 HOLE_WIDTH = 3
 HOLE_DEEP = 2
 HOLE_PARK_GAP = 3
+#: When the crater's walls end flat, the peel goes nearest first
+#: (:meth:`_Heuristic._peel_nearest`): modules at most HOLE_REACH from a cell still to
+#: peel, at most HOLE_NEAR_PEELS peels.
+HOLE_REACH = 12
+HOLE_NEAR_PEELS = 300
 #: Smoothing (:func:`smooth`, tried before digging on fleets up to SMOOTH_LIMIT modules):
 #: local repair window radius and expansions per notch.
 SMOOTH_LIMIT = 300
@@ -900,9 +907,12 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
         _Heuristic(dug, holes=True, advance=advance).run()
         # Through smoothed shapes: fewer notches stop the walkers, so relays go further
         # and less is dug (Eden blobs of 100 modules: 3.8x the bound instead of 9x on
-        # two of three seeds); the shorter plan is kept.
+        # two of three seeds); the shorter plan is kept. Larger fleets only go there
+        # when digging alone is stuck (Eden blobs of 1000 modules, after 45 digs).
         smoothed = Plan(plan.planner, p)
-        if len(goal) <= SMOOTH_LIMIT and smoothed_plan(smoothed) and (
+        if (len(goal) <= SMOOTH_LIMIT or not dug.ok) and smoothed_plan(
+                smoothed, advance=advance,
+                hole_calls=HOLE_CALLS if len(goal) <= SMOOTH_LIMIT else HOLE_CALLS_LARGE) and (
                 not dug.ok or _shortened_difference(smoothed, dug) < 0):
             plan.steps, plan.ok = smoothed.steps, True
             plan.notes += smoothed.notes
@@ -934,12 +944,71 @@ def reverse_steps(plan: Plan, problem: Problem) -> list[list[Move]]:
     return out
 
 
+class _Peel:
+    """A simulated peel (:meth:`_Heuristic._peel_plan`): the structure ``sim`` with the
+    hole filled, the cells still to peel, and the walks so far."""
+
+    def __init__(self, h: "_Heuristic", hole: set[Coord], sim: set[Coord],
+                 must: set[Coord]) -> None:
+        self.ob, self.fixed = h.obstacles, h.fixed
+        self.hole, self.sim = hole, sim
+        self.left = set(hole) | set(must)
+        self.peels: list[tuple[Coord, Coord]] = []
+        self.parked: set[Coord] = set()
+        self.hole_parks: set[Coord] = set()     # where the hole's own modules went
+
+    def real(self) -> set[Coord]:
+        """The structure the peel is played on: without the hole and its modules."""
+        return self.sim - self.hole - self.hole_parks
+
+    def movable(self, k: Coord, real: set[Coord]) -> bool:
+        """Whether ``k`` can rotate and is no cut vertex, in ``sim`` and (unless a hole
+        cell) in the real structure too: the crater is dug for real with the hole empty."""
+        if k == self.fixed or k in self.hole_parks:
+            return False
+        if not can_move(self.sim, k, self.ob) or is_cut(self.sim, k):
+            return False
+        return k in self.hole or (can_move(real, k, self.ob) and not is_cut(real, k))
+
+    def region(self, k: Coord, real: set[Coord]
+               ) -> dict[Coord, tuple[int, Coord | None, MoveRule | None]]:
+        """Where ``k`` can walk alone, in ``sim`` and (unless a hole cell) for real."""
+        reg = bfs(self.sim - {k}, k, self.ob)
+        if k not in self.hole:
+            also = bfs(real - {k}, k, self.ob)
+            reg = {c: v for c, v in reg.items() if c in also}
+        return reg
+
+    def peel_first(self, cands: list[tuple], real: set[Coord],
+                   parks: Callable[[Coord, dict], list[tuple]]) -> bool:
+        """Peel the first module of ``cands`` (keyed tuples ending in the cell, best first
+        once sorted; at most :data:`HOLE_TRY` tried) that has a parking cell:
+        ``parks(k, region)`` lists them as keyed tuples ending in the cell, best the least."""
+        for *_, k in sorted(cands)[:HOLE_TRY]:
+            options = parks(k, self.region(k, real))
+            if options:
+                self.take(k, min(options)[-1])
+                return True
+        return False
+
+    def take(self, k: Coord, park: Coord) -> None:
+        """Peel ``k`` to ``park``."""
+        self.sim.discard(k)
+        self.sim.add(park)
+        self.parked.discard(k)
+        self.parked.add(park)
+        if k in self.hole:
+            self.hole_parks.add(park)
+        self.left.discard(k)
+        self.peels.append((k, park))
+
+
 class _Heuristic(_Phase):
     """One forward run of the relay heuristic on ``plan.problem``."""
 
     def __init__(self, plan: Plan, enclosed_bonus: float = ENCLOSED_BONUS,
                  start: set[Coord] | None = None, holes: bool = False,
-                 advance: bool = False) -> None:
+                 advance: bool = False, hole_calls: int = HOLE_CALLS) -> None:
         super().__init__(plan, {xy(c) for c in plan.problem.initial} if start is None
                          else set(start))
         self.depth = goal_depth(self.goal)
@@ -956,7 +1025,7 @@ class _Heuristic(_Phase):
         self.advance = advance
         self.advance_budget = ADVANCE_CALLS
         #: Planned hole fills left (:meth:`_hole_step`; only when ``holes``).
-        self.hole_budget = HOLE_CALLS if holes else 0
+        self.hole_budget = hole_calls if holes else 0
         self.hole_failed: set[tuple[frozenset[Coord], frozenset[Coord]]] = set()
 
     def run(self) -> None:
@@ -1265,22 +1334,25 @@ class _Heuristic(_Phase):
     def _peel_plan(self, hole: set[Coord], sim: set[Coord] | None = None,
                    must: set[Coord] = frozenset()) -> list[tuple[Coord, Coord]] | None:
         """The peel of :meth:`_fill_hole`, simulated: ``(cell, parking cell)`` per
-        walk, or None; every cell of ``hole`` and ``must`` gets peeled. ``sim``
-        (default: the structure with the hole filled) is updated in place.
+        walk, or None; every cell of ``hole`` and ``must`` gets peeled. ``sim`` is the
+        structure with the hole filled (the default).
 
-        Aim at the cell still to peel nearest to an open free cell (at most two occupied
+        A crater first (:meth:`_peel_crater`); when its walls end flat, peeling nearest
+        first (:meth:`_peel_nearest`)."""
+        sim = self.occ | hole if sim is None else sim
+        peels = self._peel_crater(_Peel(self, hole, set(sim), must))
+        if peels is None:
+            peels = self._peel_nearest(_Peel(self, hole, set(sim), must))
+        return peels
+
+    def _peel_crater(self, pl: "_Peel") -> list[tuple[Coord, Coord]] | None:
+        """Aim at the cell still to peel nearest to an open free cell (at most two occupied
         neighbours) and dig the crater (see :data:`HOLE_WIDTH`) outermost first: each
-        peel is a movable module (can rotate, not a cut vertex, both in ``sim`` and in
-        the real structure, which lacks the hole and its parked modules) walking to the
-        nearest parking cell outside the goal and the crater, preferably not next to
-        another parked module. Bounded by :data:`HOLE_PEELS`."""
-        occ, goal, ob, fixed = self.occ, self.goal, self.obstacles, self.fixed
-        if sim is None:
-            sim = occ | hole
-        left = set(hole) | set(must)
-        peels: list[tuple[Coord, Coord]] = []
-        parked: set[Coord] = set()
-        hole_parks: set[Coord] = set()
+        peel is a movable module (:meth:`_Peel.movable`) walking to the nearest parking
+        cell outside the goal and the crater, preferably not next to another parked
+        module. Bounded by :data:`HOLE_PEELS`."""
+        goal, ob = self.goal, self.obstacles
+        sim, left, hole = pl.sim, pl.left, pl.hole
         aim: Coord = (1 << 30, 0)       # not a hole cell: chosen in the first round
         centre, span = aim, 0
         for _ in range(HOLE_PEELS + len(hole)):
@@ -1301,54 +1373,62 @@ class _Heuristic(_Phase):
                 centre = (round(aim[0] + (mouth[0] - aim[0]) * f),
                           round(aim[1] + (mouth[1] - aim[1]) * f))
                 span = hex_distance(aim, centre) + HOLE_DEEP
-            # The crater is dug for real with the hole empty and without the hole's
-            # own modules: its peels must be possible in that structure too.
-            real = sim - hole - hole_parks
+            real = pl.real()
             cands = []
             for k in sim:
-                if k == fixed or k in hole_parks:
-                    continue
                 dk = hex_distance(k, centre)
                 # Outside the crater only near it: the end of a flat row peels first.
                 if k not in left and dk > span + HOLE_PARK_GAP:
                     continue
-                if not can_move(sim, k, ob) or is_cut(sim, k):
-                    continue
-                if k not in hole and (not can_move(real, k, ob) or is_cut(real, k)):
-                    continue
-                cands.append((k not in left, dk > span, dk, k))
-            cands.sort()
-            moved = False
-            for *_, k in cands[:HOLE_TRY]:
-                reg = bfs(sim - {k}, k, ob)
-                if k not in hole:
-                    also = bfs(real - {k}, k, ob)
-                    reg = {c: v for c, v in reg.items() if c in also}
-                # Parking cells outside the crater, preferably not on its rim.
+                if pl.movable(k, real):
+                    cands.append((k not in left, dk > span, dk, k))
+
+            def parks(k: Coord, reg: dict) -> list[tuple]:
+                # Parking cells outside the crater, preferably not on its rim, apart from
+                # the other parked modules (each can leave again, in any order, and no
+                # notch forms between them).
                 dk = hex_distance(k, centre)
-                # Apart from the other parked modules (each can leave again, in any
-                # order, and no notch forms between them).
-                parks = [(hex_distance(c, centre) <= span + HOLE_PARK_GAP,
-                          any(hex_distance(c, q) <= 2 for q in parked if q != k), reg[c][0], c)
-                         for c in reg if c not in goal and c not in hole
-                         and hex_distance(c, centre) > max(span, dk)
-                         and hex_distance(c, aim) >= HOLE_PARK]
-                if not parks:
-                    continue
-                park = min(parks)[-1]
-                sim.discard(k)
-                sim.add(park)
-                parked.discard(k)
-                parked.add(park)
-                if k in hole:
-                    hole_parks.add(park)
-                left.discard(k)
-                peels.append((k, park))
-                moved = True
-                break
-            if not moved:
+                return [(hex_distance(c, centre) <= span + HOLE_PARK_GAP,
+                         any(hex_distance(c, q) <= 2 for q in pl.parked if q != k), reg[c][0], c)
+                        for c in reg if c not in goal and c not in hole
+                        and hex_distance(c, centre) > max(span, dk)
+                        and hex_distance(c, aim) >= HOLE_PARK]
+            if not pl.peel_first(cands, real, parks):
                 return None
-        return None if left else peels
+        return None if left else pl.peels
+
+    def _peel_nearest(self, pl: "_Peel") -> list[tuple[Coord, Coord]] | None:
+        """Peel the movable module nearest to a cell still to peel (within
+        :data:`HOLE_REACH`), modules not yet moved first, to the nearest parking cell
+        outside the goal that is farther from those cells, preferably not next to another
+        parked module. A flat face only rotates at its ends (its other modules have four
+        neighbours), so a crater ending in one is stuck; this peels the face from its end
+        inwards (Eden blobs of 1000 modules: walled-in electrons in a bay's flat ceiling).
+        Bounded by :data:`HOLE_NEAR_PEELS`."""
+        goal = self.goal
+        sim, left, hole = pl.sim, pl.left, pl.hole
+
+        def gap(c: Coord) -> int:
+            return min(hex_distance(c, a) for a in left)
+
+        for _ in range(HOLE_NEAR_PEELS):
+            if not left:
+                return pl.peels
+            real = pl.real()
+            cands = []
+            for k in sim:
+                dk = gap(k)
+                if dk <= HOLE_REACH and pl.movable(k, real):
+                    cands.append((k not in left, k in pl.parked, dk, k))
+
+            def parks(k: Coord, reg: dict) -> list[tuple]:
+                dk = gap(k)
+                return [(any(hex_distance(c, q) <= 1 for q in pl.parked if q != k), reg[c][0], c)
+                        for c in reg if c not in goal and c not in hole
+                        and gap(c) >= HOLE_PARK and gap(c) > dk]
+            if not pl.peel_first(cands, real, parks):
+                return None
+        return None if left else pl.peels
 
     def _walk_to(self, m: Coord, target: Coord) -> bool:
         """Walk the module at ``m`` alone to ``target`` if it can leave and reach it."""
@@ -1502,20 +1582,22 @@ def smooth(occ: set[Coord], fixed: Coord, obstacles: set[Coord]) -> list[list[Mo
             return steps
 
 
-def smoothed_plan(plan: Plan) -> bool:
+def smoothed_plan(plan: Plan, *, advance: bool = False, hole_calls: int = HOLE_CALLS) -> bool:
     """Plan ``plan.problem`` through smoothed shapes: the start smoothed (:func:`smooth`),
-    the relays with digging from there to the smoothed goal, then the goal's smoothing
-    played backwards (every rotation is reversible). True when it reaches the goal."""
+    the relays (with advances if ``advance``), digging from there (at most ``hole_calls``
+    digs) to the smoothed goal, then the goal's smoothing played backwards (every rotation
+    is reversible). True when it reaches the goal."""
     p: Problem = plan.problem
     fixed, ob = xy(p.fixed), {xy(c) for c in p.obstacles}
     start, goal = {xy(c) for c in p.initial}, {xy(c) for c in p.goal}
     into, out = set(start), set(goal)
     head, tail = smooth(into, fixed, ob), smooth(out, fixed, ob)
     mid = Plan(plan.planner, Problem.of(into, out, fixed, ob, p.name))
-    relays = _Heuristic(mid)
+    relays = _Heuristic(mid, advance=advance)
     relays.run()
     if not mid.ok:
-        _Heuristic(mid, start=relays.occ, holes=True).run()
+        _Heuristic(mid, start=relays.occ, holes=True, advance=advance,
+                   hole_calls=hole_calls).run()
     if not mid.ok:
         return False
     back = Plan(plan.planner, Problem.of(goal, out, fixed, ob, p.name))

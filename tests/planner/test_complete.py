@@ -112,12 +112,40 @@ def test_peel_plan_digs_every_hole_cell_out():
     sim = occ | {(5, 0), (6, -1)} | hole
     peels = h._peel_plan(hole, sim)
     assert peels and hole <= {k for k, _ in peels}
-    cur = occ | {(5, 0), (6, -1)} | hole
+    _assert_walks(peels, occ | {(5, 0), (6, -1)} | hole, cells)
+
+
+def _assert_walks(peels, cur, goal):
+    """Every peel is a lone walk of a module to a free parking cell outside the goal, and
+    the structure stays connected."""
     for k, park in peels:
-        assert k in cur and park not in cur and park not in cells
+        assert k in cur and park not in cur and park not in goal
         assert complete.walk(cur - {k}, k, {park}, set()) is not None
         cur = (cur - {k}) | {park}
         assert is_connected(cur)
+
+
+def _bay(width=18, height=8, depth=3, wall=1):
+    """A block of rows with a bay cut into its bottom row side: the bay's ceiling is a flat
+    row whose modules have four neighbours each, so none of them can rotate."""
+    block = {(x, y) for x in range(width) for y in range(height)}
+    return block - {(x, y) for x in range(wall, width - wall) for y in range(depth)}
+
+
+def test_electron_in_a_bays_flat_ceiling_is_peeled_out_from_the_walls():
+    cells = _bay()
+    e = (9, 3)                                  # mid-ceiling: four neighbours
+    goal = (cells - {e}) | {(9, 8)}
+    problem = Problem.of(cells, goal, (0, 7))
+    h = complete._Heuristic(Plan("complete", problem), holes=True)
+    # The crater, a ball in the bay, ends in the flat ceiling: nothing in it can move.
+    assert h._peel_crater(complete._Peel(h, set(), set(cells), {e})) is None
+    peels = h._peel_plan(set(), must={e})
+    assert peels and peels[-1][0] == e
+    _assert_walks(peels, cells, goal)
+    # Without the nearest-first peel the relays are stuck at once (0 moves).
+    plan = _check(problem)
+    assert any("holes dug" in n for n in plan.notes)
 
 
 def test_hole_in_a_ring_is_filled():
