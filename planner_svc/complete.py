@@ -89,7 +89,8 @@ backwards at the end), so fewer notches stop the walkers, the relays go further 
 less is dug; the shorter plan is kept (Eden blobs of 100 modules: 3.8x the bound on two
 of three seeds). Larger fleets go there only when digging alone is stuck, with
 advances and up to :data:`HOLE_CALLS_LARGE` digs (the Eden blob of 1000 modules, seed 0:
-45 digs, 13 328 moves once shortened, about 4 minutes). If that fails too, small fleets (``exact_limit`` modules or fewer) fall back to
+45 digs, 13 328 moves once shortened, about 4 minutes). If that fails too, small fleets
+(``exact_limit`` modules or fewer) fall back to
 :mod:`planner_svc.search` from the current configuration, which also proves
 unreachability (moves are reversible, so unreachable from there is unreachable from
 the start); larger fleets report that the heuristic is stuck, without claiming
@@ -1351,7 +1352,7 @@ class _Heuristic(_Phase):
             peels = self._peel_nearest(_Peel(self, hole, set(sim), must))
         return peels
 
-    def _peel_crater(self, pl: "_Peel") -> list[tuple[Coord, Coord]] | None:
+    def _peel_crater(self, pl: _Peel) -> list[tuple[Coord, Coord]] | None:
         """Aim at the cell still to peel nearest to an open free cell (at most two occupied
         neighbours) and dig the crater (see :data:`HOLE_WIDTH`) outermost first: each
         peel is a movable module (:meth:`_Peel.movable`) walking to the nearest parking
@@ -1403,7 +1404,7 @@ class _Heuristic(_Phase):
                 return None
         return None if left else pl.peels
 
-    def _peel_nearest(self, pl: "_Peel") -> list[tuple[Coord, Coord]] | None:
+    def _peel_nearest(self, pl: _Peel) -> list[tuple[Coord, Coord]] | None:
         """Peel the movable module nearest to a cell still to peel (within
         :data:`HOLE_REACH`), modules not yet moved first, to the nearest parking cell
         outside the goal that is farther from those cells, preferably not next to another
