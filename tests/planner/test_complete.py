@@ -348,12 +348,15 @@ def test_smooth_fills_notches_with_legal_moves():
 
 
 @pytest.mark.parametrize("seed", [7, 9])
-def test_smoothed_plan_reaches_the_goal(seed):
+@pytest.mark.parametrize("large", [False, True])
+def test_smoothed_plan_reaches_the_goal(seed, large):
     # Start smoothed, relays (and digging) between the smoothed shapes, the goal's
     # smoothing played backwards: one legal plan from the real start to the real goal.
+    # ``large``: as on fleets over SMOOTH_LIMIT, with advances and the larger dig budget.
     problem = random_problem(30, seed)
     plan = Plan("complete", problem)
-    assert complete.smoothed_plan(plan)
+    assert complete.smoothed_plan(plan, advance=large, hole_calls=complete.HOLE_CALLS_LARGE
+                                  if large else complete.HOLE_CALLS)
     validate(plan)
 
 
