@@ -80,6 +80,10 @@ def _timing(text: str) -> tuple[int, int, int]:
     return t  # type: ignore[return-value]
 
 
+#: Wall seconds the end of a run waits for its last bus samples to reach the recorder.
+DRAIN_S = 5.0
+
+
 def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
     from bus.clock import make_clock
     from bus.keys import check_chunk
@@ -138,9 +142,9 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
         result = service.run(since)
         if with_fleet:
             fleet.world.mechanics.publish_run_energy()
-            if not clock.drain():
-                print("warning: some bus samples had not arrived after 5 s; the recording may "
-                      "lack the last of them", flush=True)
+            if not clock.drain(timeout_s=DRAIN_S):
+                print(f"warning: some bus samples had not arrived after {DRAIN_S:g} s; the "
+                      "recording may lack the last of them", flush=True)
         print(result.summary(), flush=True)
     finally:
         for b in bridges:
