@@ -1063,7 +1063,7 @@ class _Heuristic(_Phase):
         self.advance_budget = ADVANCE_CALLS
         #: Planned hole fills left (:meth:`_hole_step`; only when ``holes``).
         self.hole_budget = hole_calls if holes else 0
-        self.hole_failed: set[tuple[frozenset[Coord], frozenset[Coord]]] = set()
+        self.hole_failed: set[tuple[frozenset[Coord], ...]] = set()
 
     def run(self) -> None:
         """Relay until the goal is reached or neither a relay nor an opening move exists."""
@@ -1271,7 +1271,8 @@ class _Heuristic(_Phase):
                         hole.add(n)
                         todo.append(n)
             done |= hole
-            key = (frozenset(hole), frozenset(voids))
+            # Retried when the electrons have moved (a dig that failed may work then).
+            key = (frozenset(hole), frozenset(voids), frozenset(occ - goal))
             if key in self.hole_failed or len(hole) > HOLE_MAX:
                 continue
             done_now = self._try_dig(key, lambda: self._fill_hole(hole))
@@ -1286,6 +1287,9 @@ class _Heuristic(_Phase):
                 continue
             before = set(occ)
             done_now = self._try_dig(key, lambda: self._fill_hole(set(), must={e}) and occ != before)
+            # Once per cell per set of voids, even when it worked: freed electrons that
+            # fill nothing get walled in again elsewhere, and the digs went round in circles.
+            self.hole_failed.add(key)
             if done_now is not None:
                 return done_now
         return False

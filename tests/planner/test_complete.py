@@ -459,3 +459,30 @@ def test_advances_finish_a_scrambled_blob_of_1000_modules():
     # Before advances the relays, exchanges and digging stopped 4 voids short here:
     # the electrons left were walled in 6-14 cells from the voids.
     _check(random_scrambled_problem(1000, 0))
+
+
+def test_walled_in_electrons_are_dug_out_once_per_cell_while_no_void_fills():
+    # Eden 1000 (seed 3): freed electrons that filled nothing got walled in again
+    # elsewhere, and the digs went round the same dozen cells until the budget was spent.
+    # Here a (stand-in) dig moves the walled-in electron between two cells and fills
+    # nothing: each cell is dug once for the same voids, then the step gives up.
+    centre, spare = (1, 1), (4, -1)
+    ring = set(neighbours_xy(centre))
+    problem = Problem.of(ring | {centre}, ring | {(3, 1)}, (1, 0))
+    h = complete._Heuristic(Plan("complete", problem), holes=True, hole_calls=50)
+    digs = []
+
+    def dig(hole, must=frozenset()):
+        if not must:
+            return False                      # the void itself cannot be dug to
+        (e,) = must
+        digs.append(e)
+        h.occ.discard(e)
+        h.occ.add(spare if e == centre else centre)
+        return True
+
+    h._fill_hole = dig
+    while h._hole_step():
+        assert len(digs) <= 2
+    assert sorted(digs) == sorted([centre, spare])
+    assert h.hole_budget > 40
