@@ -80,6 +80,11 @@ instead, so a face is eaten from its end inwards -- then played for real: the cr
 peels forward, then the whole peel backwards (every move is reversible), with an
 electron (or a waiting crater module, leaving a surface void) taking each hole cell.
 Each walk is re-searched on the current structure; a fill that fails is rolled back.
+A hole's first dig takes the first peel found; when the same cells are dug again, wider
+and deeper craters and other parkings are tried in turn (:data:`HOLE_DIGS`): holes a
+few cells deep in the bulk need them, and trying them first makes the plans longer. A
+walled-in electron is dug out once per cell per set of voids (freed electrons that fill
+nothing are walled in again elsewhere, and digs went round in circles).
 These plans are long (Eden blobs of 100 modules: up to 8x the bound, 4.7x once
 :mod:`planner_svc.shorten` has dropped their detours) but reach the goal.
 On fleets of :data:`SMOOTH_LIMIT` modules or fewer the same is also tried between
@@ -88,8 +93,8 @@ filled first by local repairs (:func:`smooth`; the goal's smoothing is played
 backwards at the end), so fewer notches stop the walkers, the relays go further and
 less is dug; the shorter plan is kept (Eden blobs of 100 modules: 3.8x the bound on two
 of three seeds). Larger fleets go there only when digging alone is stuck, with
-advances and up to :data:`HOLE_CALLS_LARGE` digs (the Eden blob of 1000 modules, seed 0:
-45 digs, 13 328 moves once shortened, about 4 minutes). If that fails too, small fleets
+advances and up to :data:`HOLE_CALLS_LARGE` digs (Eden blobs of 1000 modules: seeds 0
+and 3 solved, 5.7-8.2x the bound once shortened, 5-6 minutes). If that fails too, small fleets
 (``exact_limit`` modules or fewer) fall back to
 :mod:`planner_svc.search` from the current configuration, which also proves
 unreachability (moves are reversible, so unreachable from there is unreachable from
@@ -104,7 +109,7 @@ import functools
 import heapq
 import itertools
 from collections import deque
-from typing import Callable
+from typing import Callable, Iterable, Iterator
 
 from bus.lattice import NEIGHBOUR_OFFSET, Cell, Side
 
@@ -163,18 +168,28 @@ HOLE_PEELS = 80
 HOLE_PARK = 3
 HOLE_ELECTRONS = 8
 HOLE_TRY = 30
-#: The crater is a hexagonal ball centred HOLE_WIDTH cells beyond the open cell nearest
-#: to the aimed hole cell, reaching HOLE_DEEP cells past it; modules within
+#: The crater is a hexagonal ball centred ``width`` cells beyond the open cell nearest
+#: to the aimed hole cell, reaching ``deep`` cells past it; modules within
 #: HOLE_PARK_GAP of it may peel too (a flat row peels from its end), and parking cells
-#: are preferably farther.
-HOLE_WIDTH = 3
-HOLE_DEEP = 2
+#: are preferably farther. The ``(width, deep)`` of HOLE_CRATERS are tried in turn: a
+#: hole a few cells deep in the bulk needs the wider, deeper balls (one whose face lies
+#: along a flat surface ends flat, and which one does depends on the surface).
+HOLE_CRATERS = ((3, 2), (5, 4), (8, 4))
 HOLE_PARK_GAP = 3
 #: When the crater's walls end flat, the peel goes nearest first
 #: (:meth:`_Heuristic._peel_nearest`): modules at most HOLE_REACH from a cell still to
 #: peel, at most HOLE_NEAR_PEELS peels.
 HOLE_REACH = 12
 HOLE_NEAR_PEELS = 300
+#: Parking cells the nearest-first peel prefers, tried in turn: any (0: the nearest), or
+#: at least this far from the cells still to peel. Parked near, modules wall in the face
+#: being eaten; parked far, they may block the way elsewhere, so a fill that fails with
+#: one is tried with the next (Eden 1000, seed 3: holes 2-4 cells deep in the bulk).
+HOLE_PARK_FAR = (0, 10, 14)
+#: The order the dig tries them in: the smallest craters first (the plans stay short).
+HOLE_DIGS = (("crater", HOLE_CRATERS[0]), ("nearest", HOLE_PARK_FAR[0]),
+             *(("crater", c) for c in HOLE_CRATERS[1:]),
+             *(("nearest", f) for f in HOLE_PARK_FAR[1:]))
 #: Smoothing (:func:`smooth`, tried before digging on fleets up to SMOOTH_LIMIT modules):
 #: local repair window radius and expansions per notch.
 SMOOTH_LIMIT = 300
@@ -1064,6 +1079,8 @@ class _Heuristic(_Phase):
         #: Planned hole fills left (:meth:`_hole_step`; only when ``holes``).
         self.hole_budget = hole_calls if holes else 0
         self.hole_failed: set[tuple[frozenset[Coord], ...]] = set()
+        #: Cells (a hole, an electron) dug for before, whatever the outcome.
+        self.dug_before: set[frozenset[Coord]] = set()
 
     def run(self) -> None:
         """Relay until the goal is reached or neither a relay nor an opening move exists."""
@@ -1322,10 +1339,29 @@ class _Heuristic(_Phase):
         back) when one is impossible. Once the hole is filled a failed walk back ends the
         fill early, with success: the relays refill the rest of the crater.
         """
+        # A hole's first dig takes the first peel it finds (short plans); once one has
+        # failed, the next digs of the same cells try every peel in turn.
+        cells = frozenset(hole | must)
+        plans: Iterable[list[tuple[Coord, Coord]]]
+        if cells not in self.dug_before:
+            self.dug_before.add(cells)
+            plans = itertools.islice(self._peel_plans(hole, must=must, digs=HOLE_DIGS[:2]), 1)
+        else:
+            plans = self._peel_plans(hole, must=must)
+        for peels in plans:
+            mark, saved, seen = len(self.plan.steps), set(self.occ), set(self.seen)
+            if self._dig_and_fill(hole, peels):
+                return True
+            del self.plan.steps[mark:]
+            self.occ.clear()
+            self.occ |= saved
+            self.seen = seen
+        return False
+
+    def _dig_and_fill(self, hole: set[Coord], peels: list[tuple[Coord, Coord]]) -> bool:
+        """Play one planned peel of :meth:`_fill_hole` for real; False when a walk is
+        impossible (the caller rolls back)."""
         occ, goal, fixed = self.occ, self.goal, self.fixed
-        peels = self._peel_plan(hole, must=must)
-        if peels is None:
-            return False
         for k, park in peels:                       # dig the crater
             if k in hole:
                 continue
@@ -1379,16 +1415,27 @@ class _Heuristic(_Phase):
         structure with the hole filled (the default).
 
         A crater first (:meth:`_peel_crater`); when its walls end flat, peeling nearest
-        first (:meth:`_peel_nearest`)."""
-        sim = self.occ | hole if sim is None else sim
-        peels = self._peel_crater(_Peel(self, hole, set(sim), must))
-        if peels is None:
-            peels = self._peel_nearest(_Peel(self, hole, set(sim), must))
-        return peels
+        first (:meth:`_peel_nearest`). The first of :meth:`_peel_plans`."""
+        return next(self._peel_plans(hole, sim, must), None)
 
-    def _peel_crater(self, pl: _Peel) -> list[tuple[Coord, Coord]] | None:
+    def _peel_plans(self, hole: set[Coord], sim: set[Coord] | None = None,
+                    must: set[Coord] = frozenset(), digs: tuple = HOLE_DIGS
+                    ) -> Iterator[list[tuple[Coord, Coord]]]:
+        """The peels :meth:`_fill_hole` tries in turn (see :meth:`_peel_plan`): the
+        craters of :data:`HOLE_CRATERS`, then nearest first with each parking preference
+        of :data:`HOLE_PARK_FAR` (only those that peel every cell)."""
+        sim = self.occ | hole if sim is None else sim
+        for how, arg in digs:
+            pl = _Peel(self, hole, set(sim), must)
+            peels = (self._peel_crater(pl, *arg) if how == "crater"
+                     else self._peel_nearest(pl, arg))
+            if peels is not None:
+                yield peels
+
+    def _peel_crater(self, pl: _Peel, width: int = HOLE_CRATERS[0][0],
+                     deep: int = HOLE_CRATERS[0][1]) -> list[tuple[Coord, Coord]] | None:
         """Aim at the cell still to peel nearest to an open free cell (at most two occupied
-        neighbours) and dig the crater (see :data:`HOLE_WIDTH`) outermost first: each
+        neighbours) and dig the crater (see :data:`HOLE_CRATERS`) outermost first: each
         peel is a movable module (:meth:`_Peel.movable`) walking to the nearest parking
         cell outside the goal and the crater, preferably not next to another parked
         module. Bounded by :data:`HOLE_PEELS`."""
@@ -1410,10 +1457,10 @@ class _Heuristic(_Phase):
                 # The crater: a hexagonal ball about a centre beyond the mouth, touching
                 # the aim (its walls open at 120 degrees or more, so modules peel).
                 ln = hex_distance(aim, mouth)
-                f = (ln + HOLE_WIDTH) / ln
+                f = (ln + width) / ln
                 centre = (round(aim[0] + (mouth[0] - aim[0]) * f),
                           round(aim[1] + (mouth[1] - aim[1]) * f))
-                span = hex_distance(aim, centre) + HOLE_DEEP
+                span = hex_distance(aim, centre) + deep
             real = pl.real()
             cands = []
             for k in sim:
@@ -1438,11 +1485,11 @@ class _Heuristic(_Phase):
                 return None
         return None if left else pl.peels
 
-    def _peel_nearest(self, pl: _Peel) -> list[tuple[Coord, Coord]] | None:
+    def _peel_nearest(self, pl: _Peel, far: int = 0) -> list[tuple[Coord, Coord]] | None:
         """Peel the movable module nearest to a cell still to peel (within
         :data:`HOLE_REACH`), modules not yet moved first, to the nearest parking cell
         outside the goal that is farther from those cells, preferably not next to another
-        parked module. A flat face only rotates at its ends (its other modules have four
+        parked module and, if ``far``, at least ``far`` from those cells. A flat face only rotates at its ends (its other modules have four
         neighbours), so a crater ending in one is stuck; this peels the face from its end
         inwards (Eden blobs of 1000 modules: walled-in electrons in a bay's flat ceiling).
         Bounded by :data:`HOLE_NEAR_PEELS`."""
@@ -1464,7 +1511,8 @@ class _Heuristic(_Phase):
 
             def parks(k: Coord, reg: dict) -> list[tuple]:
                 dk = gap(k)
-                return [(any(hex_distance(c, q) <= 1 for q in pl.parked if q != k), reg[c][0], c)
+                return [(any(hex_distance(c, q) <= 1 for q in pl.parked if q != k),
+                         gap(c) < far, reg[c][0], c)
                         for c in reg if c not in goal and c not in hole
                         and gap(c) >= HOLE_PARK and gap(c) > dk]
             if not pl.peel_first(cands, real, parks):

@@ -486,3 +486,26 @@ def test_walled_in_electrons_are_dug_out_once_per_cell_while_no_void_fills():
         assert len(digs) <= 2
     assert sorted(digs) == sorted([centre, spare])
     assert h.hole_budget > 40
+
+
+def test_a_hole_deep_under_a_flat_face_is_reached_by_a_wider_crater():
+    # A thick hexagon (radius 7) with a one-cell hole four cells under its flat top face:
+    # the default crater ends in a flat face (nothing in it rotates); a wider, deeper one
+    # of HOLE_CRATERS reaches it. Every plan the dig tries peels the hole by legal walks,
+    # and the dig fills the hole for real.
+    r = 7
+    cells = {(x, y) for x in range(-r, r + 1) for y in range(-r, r + 1) if abs(x + y) <= r}
+    hole, extra = {(0, 3)}, {(r + 1, -r)}
+    occ = (cells - hole) | extra
+    problem = Problem.of(occ, cells, (0, 0))
+    plan = Plan("complete", problem)
+    h = complete._Heuristic(plan, holes=True)
+    width, deep = complete.HOLE_CRATERS[0]
+    assert h._peel_crater(complete._Peel(h, hole, occ | hole, set()), width, deep) is None
+    plans = list(h._peel_plans(hole))
+    assert len(plans) >= 2
+    for peels in plans:
+        assert hole <= {k for k, _ in peels}
+        _assert_walks(peels, occ | hole, cells)
+    assert h._fill_hole(hole) and hole <= h.occ
+    validate(plan.steps, problem.initial, None, problem.fixed, problem.obstacles)
