@@ -4,7 +4,8 @@ It finishes on every instance of the benchmark's four families (convex, sparse, 
 and scrambled, up to 1000 modules) and on small fleets (the exact search takes over).
 Large rough blobs (Eden, 1000 modules) take minutes and long plans, through the last
 resort below, and not all finish: on seed 1 the relays wall 47 voids into a lake that no
-electron enters. Where it does not finish it says "stuck" and never claims unreachability.
+electron enters; on seed 2 the last electron is walled in at the end of a one-cell crack
+of the goal. Where it does not finish it says "stuck" and never claims unreachability.
 
 Modules are interchangeable, so only electrons (modules off the goal) need to move,
 each to some void (empty goal cell).
