@@ -3,9 +3,10 @@
 It finishes on every instance of the benchmark's four families (convex, sparse, Eden
 and scrambled, up to 1000 modules) and on small fleets (the exact search takes over).
 Large rough blobs (Eden, 1000 modules) take minutes and long plans, through the last
-resort below, and not all finish: on seed 1 the relays wall 47 voids into a lake that no
-electron enters; on seed 2 the last electron is walled in at the end of a one-cell crack
-of the goal. Where it does not finish it says "stuck" and never claims unreachability.
+resort below, and not all finish (of seeds 0-4, 0 and 3 do): on seeds 1 and 4 the relays
+wall voids into lakes, and opening them leaves 15-41 voids; on seed 2 the last electron
+is walled in at the end of a one-cell crack of the goal. Where it does not finish it says
+"stuck" and never claims unreachability.
 
 Modules are interchangeable, so only electrons (modules off the goal) need to move,
 each to some void (empty goal cell).
@@ -85,7 +86,12 @@ A hole's first dig takes the first peel found; when the same cells are dug again
 and deeper craters and other parkings are tried in turn (:data:`HOLE_DIGS`): holes a
 few cells deep in the bulk need them, and trying them first makes the plans longer. A
 walled-in electron is dug out once per cell per set of voids (freed electrons that fill
-nothing are walled in again elsewhere, and digs went round in circles).
+nothing are walled in again elsewhere, and digs went round in circles). A hole of more
+than :data:`HOLE_MAX` voids (a *lake*, walled in by the relays) is not refilled but
+opened for good (:meth:`_Heuristic._open_lake`): a crater to the lake's shore module with
+the thinnest wall, its modules parked outside the goal; the relays then fill the crater's
+cells last while lake voids remain (filled first, they seal the lake again), and another
+lake is opened only once fewer voids are left than when the last one was.
 These plans are long (Eden blobs of 100 modules: up to 8x the bound, 4.7x once
 :mod:`planner_svc.shorten` has dropped their detours) but reach the goal.
 On fleets of :data:`SMOOTH_LIMIT` modules or fewer the same is also tried between
@@ -159,8 +165,9 @@ FAR = 10 ** 4
 #: Weight of the remaining defects against moves made in the local repair search.
 REPAIR_WEIGHT = 3
 #: Hole digging (last resort, :meth:`_Heuristic._hole_step`): planned fills per run,
-#: most voids per hole, peels per hole beyond its cells, least distance of a parking
-#: cell from the aimed hole cell, electrons tried per hole cell, modules tried per peel.
+#: most voids per hole (larger ones are lakes, opened instead), peels per hole beyond its
+#: cells, least distance of a parking cell from the aimed hole cell, electrons tried per
+#: hole cell (and shore modules per lake), modules tried per peel.
 HOLE_CALLS = 24
 #: Digs on the smoothed shapes of fleets over SMOOTH_LIMIT modules (the last resort there).
 HOLE_CALLS_LARGE = 100
@@ -1082,6 +1089,11 @@ class _Heuristic(_Phase):
         self.hole_failed: set[tuple[frozenset[Coord], ...]] = set()
         #: Cells (a hole, an electron) dug for before, whatever the outcome.
         self.dug_before: set[frozenset[Coord]] = set()
+        #: The last lake opened (:meth:`_open_lake`), its crater's goal cells, and the
+        #: voids left when it was opened (another lake opens only after progress).
+        self.lake: set[Coord] = set()
+        self.mouth: set[Coord] = set()
+        self.lake_voids = 1 << 30
 
     def run(self) -> None:
         """Relay until the goal is reached or neither a relay nor an opening move exists."""
@@ -1153,6 +1165,8 @@ class _Heuristic(_Phase):
         if not targets:
             return False
         settled = occ & goal
+        # An opened lake's crater is refilled last: filled first, it seals the lake again.
+        mouth = self.mouth if self.lake - occ else set()
         mobile = [k for k in sorted(occ) if self._mobile(k)]
         regions = {k: bfs(occ - {k}, k, obstacles) for k in mobile}
         penalty: dict[Coord, float] = {}
@@ -1163,7 +1177,8 @@ class _Heuristic(_Phase):
                 if c in targets and c != k:
                     if c not in penalty:
                         # Voids whose filling seals others wait; enclosed ones go first.
-                        penalty[c] = (UNSAFE_PENALTY * self._sealed_by(c, settled)
+                        penalty[c] = (UNSAFE_PENALTY * (self._sealed_by(c, settled)
+                                                        + (c in mouth))
                                       - DEPTH_BONUS * self.depth.get(c, 0)
                                       - self.enclosed_bonus * sum(n in settled
                                                              for n in neighbours_xy(c)))
@@ -1291,9 +1306,14 @@ class _Heuristic(_Phase):
             done |= hole
             # Retried when the electrons have moved (a dig that failed may work then).
             key = (frozenset(hole), frozenset(voids), frozenset(occ - goal))
-            if key in self.hole_failed or len(hole) > HOLE_MAX:
+            if key in self.hole_failed:
                 continue
-            done_now = self._try_dig(key, lambda: self._fill_hole(hole))
+            if len(hole) > HOLE_MAX:
+                if len(voids) >= self.lake_voids:
+                    continue
+                done_now = self._try_dig(key, lambda: self._open_lake(hole))
+            else:
+                done_now = self._try_dig(key, lambda: self._fill_hole(hole))
             if done_now is not None:
                 return done_now
         # Electrons walled in (or reaching no void): dig each out the same way.
@@ -1310,6 +1330,54 @@ class _Heuristic(_Phase):
             self.hole_failed.add(key)
             if done_now is not None:
                 return done_now
+        return False
+
+    def _open_lake(self, lake: set[Coord]) -> bool:
+        """Open a hole too big to dig and refill (a *lake*) to the outside, for good: a
+        crater from the open surface to the lake's shore module with the thinnest wall,
+        its modules parked outside the goal (they become electrons; the crater's goal
+        cells, voids the relays fill). False when no peel reaches it."""
+        occ, ob = self.occ, self.obstacles
+        lo = (min(x for x, _ in occ) - 2, min(y for _, y in occ) - 2)
+        hi = (max(x for x, _ in occ) + 2, max(y for _, y in occ) + 2)
+        outside, todo = {lo}, deque([lo])
+        while todo:
+            c = todo.popleft()
+            for n in neighbours_xy(c):
+                if (lo[0] <= n[0] <= hi[0] and lo[1] <= n[1] <= hi[1] and n not in occ
+                        and n not in outside):
+                    outside.add(n)
+                    todo.append(n)
+        # Wall thickness: breadth-first steps through modules from the outside.
+        depth: dict[Coord, int] = {}
+        todo = deque()
+        for c in outside:
+            for n in neighbours_xy(c):
+                if n in occ and n not in depth:
+                    depth[n] = 1
+                    todo.append(n)
+        while todo:
+            c = todo.popleft()
+            for n in neighbours_xy(c):
+                if n in occ and n not in depth:
+                    depth[n] = depth[c] + 1
+                    todo.append(n)
+        shore = sorted({n for v in lake for n in neighbours_xy(v) if n in depth},
+                       key=lambda c: (depth[c], c))
+        before = len(self.goal - occ)
+        for target in shore[:HOLE_ELECTRONS]:
+            if target == self.fixed:
+                continue
+            for peels in self._peel_plans(set(), must={target}):
+                mark, saved, seen = len(self.plan.steps), set(occ), set(self.seen)
+                if all(self._walk_to(k, park) for k, park in peels):
+                    self.lake, self.lake_voids = set(lake), before
+                    self.mouth = {k for k, _ in peels} & self.goal
+                    return True
+                del self.plan.steps[mark:]
+                occ.clear()
+                occ |= saved
+                self.seen = seen
         return False
 
     def _try_dig(self, key, attempt) -> bool | None:

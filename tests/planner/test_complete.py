@@ -509,3 +509,34 @@ def test_a_hole_deep_under_a_flat_face_is_reached_by_a_wider_crater():
         _assert_walks(peels, occ | hole, cells)
     assert h._fill_hole(hole) and hole <= h.occ
     validate(plan.steps, problem.initial, None, problem.fixed, problem.obstacles)
+
+
+def _free_reach(occ, start, box=20):
+    """Free cells reachable from ``start`` through free cells within ``box`` of the origin."""
+    seen, todo = {start}, [start]
+    while todo:
+        for n in neighbours_xy(todo.pop()):
+            if n not in occ and n not in seen and max(map(abs, n)) <= box:
+                seen.add(n)
+                todo.append(n)
+    return seen
+
+
+def test_a_lake_too_big_to_dig_is_opened_to_the_outside():
+    # A hexagon of radius 6 with a lake of 19 cells inside (more than HOLE_MAX), walls
+    # four cells thick; the electrons wait outside. The lake is opened by a crater from
+    # the surface, and the crater's cells are filled last while lake voids remain.
+    r = 6
+    cells = {(x, y) for x in range(-r, r + 1) for y in range(-r, r + 1) if abs(x + y) <= r}
+    lake = {c for c in cells if hex_distance(c, (0, 0)) <= 2}
+    electrons = {(x, -r - 1) for x in range(1, 1 + len(lake))}
+    occ = (cells - lake) | electrons
+    problem = Problem.of(occ, cells, (r, 0))
+    plan = Plan("complete", problem)
+    h = complete._Heuristic(plan, holes=True)
+    assert len(lake) > complete.HOLE_MAX
+    assert not lake & _free_reach(h.occ, (0, 20))              # sealed at first
+    assert h._open_lake(lake)
+    assert lake <= _free_reach(h.occ, (0, 20))                 # open now
+    assert h.mouth and h.mouth <= cells - h.occ and h.lake == lake
+    validate(plan.steps, problem.initial, None, problem.fixed, problem.obstacles)
