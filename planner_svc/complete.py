@@ -349,16 +349,17 @@ def goal_depth(goal: set[Coord]) -> dict[Coord, int]:
 
     Deep voids are filled first: they only get harder to enter as the goal fills up.
     """
-    depth: dict[Coord, int] = {}
-    todo: deque[Coord] = deque()
-    for c in goal:
-        if any(n not in goal for n in neighbours_xy(c)):
-            depth[c] = 1
-            todo.append(c)
+    return layers(goal, {c for c in goal if any(n not in goal for n in neighbours_xy(c))})
+
+
+def layers(cells: set[Coord], first: set[Coord]) -> dict[Coord, int]:
+    """Breadth-first depth inside ``cells`` of each cell reached from ``first`` (depth 1)."""
+    depth = dict.fromkeys(first, 1)
+    todo: deque[Coord] = deque(first)
     while todo:
         c = todo.popleft()
         for n in neighbours_xy(c):
-            if n in goal and n not in depth:
+            if n in cells and n not in depth:
                 depth[n] = depth[c] + 1
                 todo.append(n)
     return depth
@@ -1349,19 +1350,7 @@ class _Heuristic(_Phase):
                     outside.add(n)
                     todo.append(n)
         # Wall thickness: breadth-first steps through modules from the outside.
-        depth: dict[Coord, int] = {}
-        todo = deque()
-        for c in outside:
-            for n in neighbours_xy(c):
-                if n in occ and n not in depth:
-                    depth[n] = 1
-                    todo.append(n)
-        while todo:
-            c = todo.popleft()
-            for n in neighbours_xy(c):
-                if n in occ and n not in depth:
-                    depth[n] = depth[c] + 1
-                    todo.append(n)
+        depth = layers(occ, {n for c in outside for n in neighbours_xy(c) if n in occ})
         shore = sorted({n for v in lake for n in neighbours_xy(v) if n in depth},
                        key=lambda c: (depth[c], c))
         before = len(self.goal - occ)
@@ -1369,30 +1358,30 @@ class _Heuristic(_Phase):
             if target == self.fixed:
                 continue
             for peels in self._peel_plans(set(), must={target}):
-                mark, saved, seen = len(self.plan.steps), set(occ), set(self.seen)
-                if all(self._walk_to(k, park) for k, park in peels):
+                if self._or_undo(lambda: all(self._walk_to(k, park) for k, park in peels)):
                     self.lake, self.lake_voids = set(lake), before
                     self.mouth = {k for k, _ in peels} & self.goal
                     return True
-                del self.plan.steps[mark:]
-                occ.clear()
-                occ |= saved
-                self.seen = seen
+        return False
+
+    def _or_undo(self, attempt: Callable[[], bool]) -> bool:
+        """Run ``attempt`` (which plays moves); if it returns False, undo its moves."""
+        mark, saved, seen = len(self.plan.steps), set(self.occ), set(self.seen)
+        if attempt():
+            return True
+        del self.plan.steps[mark:]
+        self.occ.clear()
+        self.occ |= saved
+        self.seen = seen
         return False
 
     def _try_dig(self, key, attempt) -> bool | None:
         """Run one dig ``attempt``; roll the plan back if it fails. True: it worked;
         False: the dig budget is spent; None: try the next hole."""
-        occ = self.occ
         self.hole_budget -= 1
-        mark, saved, seen = len(self.plan.steps), set(occ), set(self.seen)
-        if attempt():
+        if self._or_undo(attempt):
             return True
         self.hole_failed.add(key)
-        del self.plan.steps[mark:]
-        occ.clear()
-        occ |= saved
-        self.seen = seen
         return False if self.hole_budget <= 0 else None
 
     def _fill_hole(self, hole: set[Coord], must: set[Coord] = frozenset()) -> bool:
@@ -1417,15 +1406,7 @@ class _Heuristic(_Phase):
             plans = itertools.islice(self._peel_plans(hole, must=must, digs=HOLE_DIGS[:2]), 1)
         else:
             plans = self._peel_plans(hole, must=must)
-        for peels in plans:
-            mark, saved, seen = len(self.plan.steps), set(self.occ), set(self.seen)
-            if self._dig_and_fill(hole, peels):
-                return True
-            del self.plan.steps[mark:]
-            self.occ.clear()
-            self.occ |= saved
-            self.seen = seen
-        return False
+        return any(self._or_undo(lambda: self._dig_and_fill(hole, peels)) for peels in plans)
 
     def _dig_and_fill(self, hole: set[Coord], peels: list[tuple[Coord, Coord]]) -> bool:
         """Play one planned peel of :meth:`_fill_hole` for real; False when a walk is
