@@ -1346,7 +1346,7 @@ class _Heuristic(_Phase):
             c = todo.popleft()
             for n in neighbours_xy(c):
                 if (lo[0] <= n[0] <= hi[0] and lo[1] <= n[1] <= hi[1] and n not in occ
-                        and n not in outside):
+                        and n not in ob and n not in outside):
                     outside.add(n)
                     todo.append(n)
         # Wall thickness: breadth-first steps through modules from the outside.
@@ -1471,9 +1471,10 @@ class _Heuristic(_Phase):
     def _peel_plans(self, hole: set[Coord], sim: set[Coord] | None = None,
                     must: set[Coord] = frozenset(), digs: tuple = HOLE_DIGS
                     ) -> Iterator[list[tuple[Coord, Coord]]]:
-        """The peels :meth:`_fill_hole` tries in turn (see :meth:`_peel_plan`): the
-        craters of :data:`HOLE_CRATERS`, then nearest first with each parking preference
-        of :data:`HOLE_PARK_FAR` (only those that peel every cell)."""
+        """The peels :meth:`_fill_hole` tries in turn (see :meth:`_peel_plan`), in the
+        order of ``digs`` (:data:`HOLE_DIGS`: the craters of :data:`HOLE_CRATERS` and the
+        nearest-first peels with the parking preferences of :data:`HOLE_PARK_FAR`), only
+        those that peel every cell."""
         sim = self.occ | hole if sim is None else sim
         for how, arg in digs:
             pl = _Peel(self, hole, set(sim), must)
@@ -1539,10 +1540,10 @@ class _Heuristic(_Phase):
         """Peel the movable module nearest to a cell still to peel (within
         :data:`HOLE_REACH`), modules not yet moved first, to the nearest parking cell
         outside the goal that is farther from those cells, preferably not next to another
-        parked module and, if ``far``, at least ``far`` from those cells. A flat face only rotates at its ends (its other modules have four
-        neighbours), so a crater ending in one is stuck; this peels the face from its end
-        inwards (Eden blobs of 1000 modules: walled-in electrons in a bay's flat ceiling).
-        Bounded by :data:`HOLE_NEAR_PEELS`."""
+        parked module and, if ``far``, at least ``far`` from those cells. A flat face only
+        rotates at its ends (its other modules have four neighbours), so a crater ending in
+        one is stuck; this peels the face from its end inwards (Eden blobs of 1000 modules:
+        walled-in electrons in a bay's flat ceiling). Bounded by :data:`HOLE_NEAR_PEELS`."""
         goal = self.goal
         sim, left, hole = pl.sim, pl.left, pl.hole
 
