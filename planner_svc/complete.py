@@ -1284,8 +1284,9 @@ class _Heuristic(_Phase):
         return hops[-1]
 
     def _hole_step(self) -> bool:
-        """Fill a hole (a cluster of voids no walker reaches) by a planned dig: see
-        :meth:`_fill_hole`. Each hole is tried once per configuration of voids."""
+        """Fill a hole (a cluster of voids no walker reaches) by a planned dig (see
+        :meth:`_fill_hole`), or open it if it is a lake (:meth:`_open_lake`). A hole that
+        failed is tried again once the voids or the electrons have changed."""
         if self.hole_budget <= 0:
             return False
         occ, goal = self.occ, self.goal
@@ -1294,6 +1295,9 @@ class _Heuristic(_Phase):
         for e in sorted(occ - goal):
             if self._mobile(e):
                 reach |= bfs(occ - {e}, e, self.obstacles).keys()
+        # A failed dig leaves the structure as it was, and one that works returns: the
+        # voids and electrons stay the same through both loops.
+        these_voids, electrons = frozenset(voids), frozenset(occ - goal)
         done: set[Coord] = set()
         for t in sorted(voids - reach, key=lambda v: (-self.depth.get(v, 0), v)):
             if t in done:
@@ -1306,7 +1310,7 @@ class _Heuristic(_Phase):
                         todo.append(n)
             done |= hole
             # Retried when the electrons have moved (a dig that failed may work then).
-            key = (frozenset(hole), frozenset(voids), frozenset(occ - goal))
+            key = (frozenset(hole), these_voids, electrons)
             if key in self.hole_failed:
                 continue
             if len(hole) > HOLE_MAX:
@@ -1321,7 +1325,7 @@ class _Heuristic(_Phase):
         for e in sorted(occ - goal, key=lambda c: (-self.depth.get(c, 0), c)):
             if self._mobile(e) and not voids.isdisjoint(bfs(occ - {e}, e, self.obstacles)):
                 continue
-            key = (frozenset({e}), frozenset(voids))
+            key = (frozenset({e}), these_voids)
             if key in self.hole_failed:
                 continue
             before = set(occ)
@@ -1562,10 +1566,10 @@ class _Heuristic(_Phase):
 
             def parks(k: Coord, reg: dict) -> list[tuple]:
                 dk = gap(k)
+                gaps = {c: gap(c) for c in reg if c not in goal and c not in hole}
                 return [(any(hex_distance(c, q) <= 1 for q in pl.parked if q != k),
-                         gap(c) < far, reg[c][0], c)
-                        for c in reg if c not in goal and c not in hole
-                        and gap(c) >= HOLE_PARK and gap(c) > dk]
+                         g < far, reg[c][0], c)
+                        for c, g in gaps.items() if g >= HOLE_PARK and g > dk]
             if not pl.peel_first(cands, real, parks):
                 return None
         return None if left else pl.peels
