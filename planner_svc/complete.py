@@ -932,6 +932,7 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
     occ = {xy(c) for c in p.initial}
     _AssignWalk(first, occ).run()
     walked = occ == goal
+    relays: _Heuristic | None = None
     if walked:
         first.ok = True
         forward = first
@@ -942,7 +943,8 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
                 forward = relay
     else:
         forward = Plan(plan.planner, p)
-        _Heuristic(forward, advance=advance).run()
+        relays = _Heuristic(forward, advance=advance)
+        relays.run()
         # Carrying on from where phase 1 stopped is sometimes much shorter (scrambled
         # blobs of 100 modules: mean 1.52x the bound instead of 1.70x over seeds 0-9);
         # on large fleets it only runs when needed (the time target).
@@ -964,8 +966,10 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
     if not forward.ok:
         # Last resort: the relays again, now digging holes open and filling them
         # (:meth:`_Heuristic._hole_step`; long plans, but they reach the goal).
+        # It goes on from where the relays stopped (no other run failed here).
+        assert relays is not None
         dug = Plan(plan.planner, p)
-        _Heuristic(dug, holes=True, advance=advance).run()
+        relays.dig_on(dug)
         # Through smoothed shapes: fewer notches stop the walkers, so relays go further
         # and less is dug (Eden blobs of 100 modules: 3.8x the bound instead of 9x on
         # two of three seeds); the shorter plan is kept. Larger fleets only go there
@@ -1095,17 +1099,20 @@ class _Heuristic(_Phase):
         self.lake: set[Coord] = set()
         self.mouth: set[Coord] = set()
         self.lake_voids = 1 << 30
+        #: The fewest voids so far (fewer is progress: the budgets are renewed).
+        self.fewest = len(self.goal - self.occ)
 
     def run(self) -> None:
-        """Relay until the goal is reached or neither a relay nor an opening move exists."""
+        """Relay until the goal is reached or neither a relay nor an opening move exists.
+
+        A run that stopped may go on, in the same plan or a copy (:meth:`dig_on`)."""
         goal = self.goal
         max_moves = MAX_MOVES_PER_MODULE * len(goal) + 100
-        fewest = len(goal - self.occ)
         while self.occ != goal:
             left = len(goal - self.occ)
-            if left < fewest:
+            if left < self.fewest:
                 # Progress: the repairs that led here earn a fresh budget.
-                fewest = left
+                self.fewest = left
                 self.repair_budget = REPAIR_CALLS
                 self.advance_budget = ADVANCE_CALLS
             if self.plan.moves > max_moves:
@@ -1127,6 +1134,15 @@ class _Heuristic(_Phase):
                                     f"with {len(goal - self.occ)} voids left")
                 return
         self.plan.ok = True
+
+    def dig_on(self, plan: Plan, hole_calls: int = HOLE_CALLS) -> None:
+        """Go on from where a run without digs stopped, now digging (at most
+        ``hole_calls`` digs), into ``plan``, a copy of the moves so far: the same plan as
+        a run with digs from the start, which only digs where this one stopped."""
+        plan.steps = list(self.plan.steps)
+        self.plan = plan
+        self.hole_budget = hole_calls
+        self.run()
 
     # -- helpers
     def _do_walk(self, path: Path) -> None:

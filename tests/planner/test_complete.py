@@ -101,6 +101,34 @@ def test_sealed_voids_are_dug_open_and_filled(seed):
     assert any("holes dug" in n for n in plan.notes)
 
 
+def test_digging_on_from_where_the_relays_stopped_is_the_run_that_digs_from_the_start():
+    # The last resort reuses the stopped relays instead of replaying them (Eden blobs of
+    # 1000 modules: 30 s); the plan must be the one a digging run makes from the start.
+    problem = random_problem(30, 7)
+    stopped = Plan("complete", problem)
+    relays = complete._Heuristic(stopped)
+    relays.run()
+    assert not stopped.ok
+    on, fresh = Plan("complete", problem), Plan("complete", problem)
+    relays.dig_on(on)
+    complete._Heuristic(fresh, holes=True).run()
+    assert on.ok and on.steps == fresh.steps
+    assert len(stopped.steps) < len(on.steps)      # the stopped plan is left as it was
+
+
+def test_under_a_flat_face_only_the_ends_of_a_row_move():
+    # Why digging starts where the structure ends: with the top row gone, each module of
+    # the next row keeps its two row neighbours and the two below it, four in all.
+    width, height = 12, 5
+    block = {(x, y) for x in range(width) for y in range(height)}
+    occ = block - {(x, height - 1) for x in range(width)}
+    row = [(x, height - 2) for x in range(width)]
+    assert [c for c in row if complete.can_move(occ, c, set())] == [row[0], row[-1]]
+    # Eating the row from one end frees each next module in turn, and only that one.
+    occ.discard(row[0])
+    assert [c for c in row[1:] if complete.can_move(occ, c, set())] == [row[1], row[-1]]
+
+
 def test_peel_plan_digs_every_hole_cell_out():
     # A thick hexagon with a two-cell hole inside: the simulated peel reaches it and
     # every peel is a walk of a movable module to a parking cell outside the goal.
