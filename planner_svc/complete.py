@@ -91,7 +91,13 @@ than :data:`HOLE_MAX` voids (a *lake*, walled in by the relays) is not refilled 
 opened for good (:meth:`_Heuristic._open_lake`): a crater to the lake's shore module with
 the thinnest wall, its modules parked outside the goal; the relays then fill the crater's
 cells last while lake voids remain (filled first, they seal the lake again), and another
-lake is opened only once fewer voids are left than when the last one was.
+lake is opened only once fewer voids are left than when the last one was. When no dig
+works, a walled-in electron is freed by a detour (:meth:`_Heuristic._clear_wedge`): the
+relays play towards the goal with a 120-degree :func:`wedge` of the structure at the
+electron traded for a coat of parking cells, until the electron has left its cell, and
+then refill the wedge apex first. Under a flat face only a row's ends peel, so only a
+corner reaches a module in the bulk; the relays carry the wedge's modules past the
+notches of its rough far side, where lone walks to parking cells stop.
 These plans are long (Eden blobs of 100 modules: up to 8x the bound, 4.7x once
 :mod:`planner_svc.shorten` has dropped their detours) but reach the goal.
 On fleets of :data:`SMOOTH_LIMIT` modules or fewer the same is also tried between
@@ -122,8 +128,8 @@ from bus.lattice import NEIGHBOUR_OFFSET, Cell, Side
 
 from .bounds import distance_matrix, electron_void_assignment, min_cost_assignment
 from .plan import Plan, Problem
-from .rules import (RULE_OFFSETS, Coord, Move, MoveRule, find_move, hex_distance,
-                    neighbours_xy, to_move, xy)
+from .rules import (RULE_OFFSETS, SIDE_OFFSETS, Coord, Move, MoveRule, find_move,
+                    hex_distance, is_connected, neighbours_xy, to_move, xy)
 from .search import DEFAULT_MARGIN, best_first, search_from
 
 #: Fleets up to this size fall back to the exact search when the heuristic is stuck.
@@ -198,6 +204,9 @@ HOLE_PARK_FAR = (0, 10, 14)
 HOLE_DIGS = (("crater", HOLE_CRATERS[0]), ("nearest", HOLE_PARK_FAR[0]),
              *(("crater", c) for c in HOLE_CRATERS[1:]),
              *(("nearest", f) for f in HOLE_PARK_FAR[1:]))
+#: The last resort for a walled-in electron (:meth:`_Heuristic._clear_wedge`): the relays
+#: empty a 120-degree wedge of the structure at it, of at most WEDGE_MAX modules.
+WEDGE_MAX = 200
 #: Smoothing (:func:`smooth`, tried before digging on fleets up to SMOOTH_LIMIT modules):
 #: local repair window radius and expansions per notch.
 SMOOTH_LIMIT = 300
@@ -1009,6 +1018,36 @@ def reverse_steps(plan: Plan, problem: Problem) -> list[list[Move]]:
     return out
 
 
+def wedge(apexes: set[Coord], occ: set[Coord], side: int
+          ) -> tuple[Callable[[Coord], bool], Callable[[Coord], int], list[Coord]]:
+    """The 120-degree wedges at ``apexes`` that open between the directions d, d' of
+    sides ``side`` and ``side + 2``, the cells apex + a*d + b*d' (a, b >= 0): a
+    membership test, the level a + b of a cell (apex + a*d + b*d' for any apex: only
+    differences count), and the modules of ``occ`` in them, highest level (farthest out)
+    first, the apexes last.
+
+    Taken away in that order, each module leaves with its neighbours farther out gone:
+    those left lie in one arc of at most three (nearer the apex, or outside the wedge on
+    its near side), so it can rotate and cuts nothing. Under a flat face that is the only
+    way in (see ``docs/planner.md``): the wedge makes the apex a corner."""
+    (ux, uy), (vx, vy) = SIDE_OFFSETS[side % 6], SIDE_OFFSETS[(side + 2) % 6]
+    det = ux * vy - uy * vx                     # +-1: the two directions span the lattice
+
+    def ab(c: Coord) -> tuple[int, int]:
+        return (c[0] * vy - c[1] * vx) // det, (ux * c[1] - uy * c[0]) // det
+
+    tips = [ab(t) for t in apexes]
+
+    def inside(c: Coord) -> bool:
+        a, b = ab(c)
+        return any(a >= ta and b >= tb for ta, tb in tips)
+
+    def level(c: Coord) -> int:
+        return sum(ab(c))
+
+    return inside, level, sorted((c for c in occ if inside(c)), key=lambda c: (-level(c), c))
+
+
 class _Peel:
     """A simulated peel (:meth:`_Heuristic._peel_plan`): the structure ``sim`` with the
     hole filled, the cells still to peel, and the walks so far."""
@@ -1099,16 +1138,22 @@ class _Heuristic(_Phase):
         self.lake: set[Coord] = set()
         self.mouth: set[Coord] = set()
         self.lake_voids = 1 << 30
+        #: The goal cells of the last wedge emptied (:meth:`_clear_wedge`) and their
+        #: levels: refilled apex first, the peel backwards (else the apex is sealed).
+        self.wedge_fill: dict[Coord, int] = {}
         #: The fewest voids so far (fewer is progress: the budgets are renewed).
         self.fewest = len(self.goal - self.occ)
 
-    def run(self) -> None:
-        """Relay until the goal is reached or neither a relay nor an opening move exists.
+    def run(self, until: Callable[[], bool] | None = None) -> None:
+        """Relay until the goal is reached (or ``until()`` holds) or neither a relay
+        nor an opening move exists.
 
         A run that stopped may go on, in the same plan or a copy (:meth:`dig_on`)."""
         goal = self.goal
         max_moves = MAX_MOVES_PER_MODULE * len(goal) + 100
         while self.occ != goal:
+            if until is not None and until():
+                return
             left = len(goal - self.occ)
             if left < self.fewest:
                 # Progress: the repairs that led here earn a fresh budget.
@@ -1184,6 +1229,7 @@ class _Heuristic(_Phase):
         settled = occ & goal
         # An opened lake's crater is refilled last: filled first, it seals the lake again.
         mouth = self.mouth if self.lake - occ else set()
+        low = min((lv for c, lv in self.wedge_fill.items() if c not in occ), default=0)
         mobile = [k for k in sorted(occ) if self._mobile(k)]
         regions = {k: bfs(occ - {k}, k, obstacles) for k in mobile}
         penalty: dict[Coord, float] = {}
@@ -1195,7 +1241,8 @@ class _Heuristic(_Phase):
                     if c not in penalty:
                         # Voids whose filling seals others wait; enclosed ones go first.
                         penalty[c] = (UNSAFE_PENALTY * (self._sealed_by(c, settled)
-                                                        + (c in mouth))
+                                                        + (c in mouth)
+                                                        + (self.wedge_fill.get(c, 0) > low))
                                       - DEPTH_BONUS * self.depth.get(c, 0)
                                       - self.enclosed_bonus * sum(n in settled
                                                              for n in neighbours_xy(c)))
@@ -1351,7 +1398,75 @@ class _Heuristic(_Phase):
             self.hole_failed.add(key)
             if done_now is not None:
                 return done_now
+        # Nothing else worked: a walled-in electron is freed by emptying a wedge at it.
+        for e in sorted(occ - goal, key=lambda c: (-self.depth.get(c, 0), c)):
+            key = (frozenset({e}), these_voids, "wedge")
+            if key in self.hole_failed or self._mobile(e):
+                continue
+            done_now = self._try_dig(key, lambda: self._clear_wedge(e))
+            self.hole_failed.add(key)
+            if done_now is not None:
+                return done_now
         return False
+
+    def _clear_wedge(self, e: Coord) -> bool:
+        """Free the walled-in electron at ``e`` by a detour: the relays play towards the
+        goal with the goal cells of a :func:`wedge` at ``e`` traded for parking cells
+        (:meth:`_detour_goal`), until ``e`` has left its cell. The smallest wedge first
+        (at most :data:`WEDGE_MAX` modules, not the fixed one). The wedge's modules are
+        peelable in order whatever its surface looks like, and the relays carry them past
+        the notches of that surface, where lone walks to parking cells stop; afterwards
+        the relays refill the wedge. False if no detour frees ``e`` (nothing moved)."""
+        occ, fixed, ob = self.occ, self.fixed, self.obstacles
+        wedges = []
+        for side in range(6):
+            inside, level, cells = wedge({e}, occ, side)
+            if len(cells) <= WEDGE_MAX and not inside(fixed):
+                wedges.append((len(cells), side, inside, level, cells))
+        for *_, inside, level, cells in sorted(wedges, key=lambda w: w[:2]):
+            detour = self._detour_goal(inside, set(cells))
+            if detour is None:
+                continue
+            sub = Plan(self.plan.planner, Problem.of(occ, detour, fixed, ob, "wedge"))
+            relays = _Heuristic(sub, advance=self.advance)
+            relays.run(until=lambda: e not in relays.occ)
+            if e in relays.occ:
+                continue
+            self.plan.steps += sub.steps
+            occ.clear()
+            occ |= relays.occ
+            self.seen.add(frozenset(occ))
+            self.wedge_fill = {c: level(c) for c in self.goal if inside(c)}
+            return True
+        return False
+
+    def _detour_goal(self, inside: Callable[[Coord], bool], cells: set[Coord]
+                     ) -> set[Coord] | None:
+        """The goal without the cells ``inside`` a wedge (whose modules are ``cells``)
+        and with as many parking cells, outside the goal and the wedge and touching none
+        of its modules: a coat on the structure, nearest the wedge first (a second coat on
+        the first if need be). A parking cell off the surface is hard to fill: clumps of
+        them wall each other in. None if there are not enough, or the detour goal is not
+        connected."""
+        occ, ob = self.occ, self.obstacles
+        keep = {c for c in self.goal if not inside(c)}
+        need = len(occ) - len(keep)
+
+        def ok(c: Coord) -> bool:
+            return (c not in occ and c not in self.goal and c not in ob and not inside(c)
+                    and not any(n in cells for n in neighbours_xy(c)))
+
+        parks: set[Coord] = set()
+        under = occ - cells
+        while len(parks) < need:
+            coat = sorted({n for c in under for n in neighbours_xy(c) if ok(n)} - parks,
+                          key=lambda c: (min(hex_distance(c, w) for w in cells), c))
+            if not coat:
+                return None
+            parks.update(coat[:need - len(parks)])
+            under = parks
+        detour = keep | parks
+        return detour if is_connected(detour) else None
 
     def _open_lake(self, lake: set[Coord]) -> bool:
         """Open a hole too big to dig and refill (a *lake*) to the outside, for good: a

@@ -510,6 +510,7 @@ def test_walled_in_electrons_are_dug_out_once_per_cell_while_no_void_fills():
         return True
 
     h._fill_hole = dig
+    h._clear_wedge = lambda e: False          # the last resort after the digs: not here
     while h._hole_step():
         assert len(digs) <= 2
     assert sorted(digs) == sorted([centre, spare])
@@ -568,3 +569,43 @@ def test_a_lake_too_big_to_dig_is_opened_to_the_outside():
     assert lake <= _free_reach(h.occ, (0, 20))                 # open now
     assert h.mouth and h.mouth <= cells - h.occ and h.lake == lake
     validate(plan.steps, problem.initial, None, problem.fixed, problem.obstacles)
+
+
+def _hexagon(r):
+    return {(x, y) for x in range(-r, r + 1) for y in range(-r, r + 1) if abs(x + y) <= r}
+
+
+@pytest.mark.parametrize("side", range(6))
+def test_a_wedge_peels_farthest_first_whatever_the_block(side):
+    # Taken away in wedge order, every module of a solid block can rotate and cuts
+    # nothing when its turn comes: its neighbours left lie in one arc of at most three.
+    occ = _hexagon(6)
+    inside, level, order = complete.wedge({(1, 2)}, occ, side)
+    assert order[-1] == (1, 2) and all(inside(c) for c in order)
+    assert [level(c) for c in order] == sorted((level(c) for c in order), reverse=True)
+    for c in order:
+        assert complete.can_move(occ, c, set()) and not complete.is_cut(occ, c), c
+        occ.discard(c)
+
+
+def test_a_walled_in_electron_is_freed_by_emptying_a_wedge_and_the_wedge_refilled():
+    # An electron three rows under the flat top of a hexagon, its six neighbours goal
+    # cells: the relays take a wedge at it away towards a detour goal until it has left,
+    # then refill the wedge apex first; the plan is legal and reaches the goal.
+    cells = _hexagon(5)
+    e = (0, 2)
+    goal = (cells - {e}) | {(6, -5)}
+    problem = Problem.of(cells, goal, (0, -5))
+    plan = Plan("complete", problem)
+    h = complete._Heuristic(plan, holes=True)
+    assert not any(n not in cells for n in neighbours_xy(e))
+    assert h._clear_wedge(e) and e not in h.occ and h.wedge_fill
+    levels = h.wedge_fill
+    for _ in range(4):          # apex first: each relay fills a void of the lowest level
+        open_ = {c for c in levels if c not in h.occ}
+        assert h._relay_step()
+        filled = open_ & h.occ
+        assert [levels[c] for c in filled] == [min(levels[c] for c in open_)]
+    h.run()
+    assert plan.ok
+    validate(plan.steps, problem.initial, problem.goal, problem.fixed, problem.obstacles)
