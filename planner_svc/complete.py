@@ -3,10 +3,9 @@
 It finishes on every instance of the benchmark's four families (convex, sparse, Eden
 and scrambled, up to 1000 modules) and on small fleets (the exact search takes over).
 Large rough blobs (Eden, 1000 modules) take minutes and long plans, through the last
-resort below, and not all finish (of seeds 0-4, 0 and 3 do): on seeds 1 and 4 the relays
-wall voids into lakes, and opening them leaves 15-41 voids; on seed 2 the last electron
-is walled in at the end of a one-cell crack of the goal. Where it does not finish it says
-"stuck" and never claims unreachability.
+resort below, and not all finish (of seeds 0-4, 0, 2 and 3 do): on seeds 1 and 4 the
+relays wall voids into lakes, and opening them leaves 15-41 voids. Where it does not
+finish it says "stuck" and never claims unreachability.
 
 Modules are interchangeable, so only electrons (modules off the goal) need to move,
 each to some void (empty goal cell).
@@ -1229,7 +1228,8 @@ class _Heuristic(_Phase):
         settled = occ & goal
         # An opened lake's crater is refilled last: filled first, it seals the lake again.
         mouth = self.mouth if self.lake - occ else set()
-        low = min((lv for c, lv in self.wedge_fill.items() if c not in occ), default=0)
+        fill = self.wedge_fill
+        low = min((lv for c, lv in fill.items() if c not in occ), default=0)
         mobile = [k for k in sorted(occ) if self._mobile(k)]
         regions = {k: bfs(occ - {k}, k, obstacles) for k in mobile}
         penalty: dict[Coord, float] = {}
@@ -1242,7 +1242,7 @@ class _Heuristic(_Phase):
                         # Voids whose filling seals others wait; enclosed ones go first.
                         penalty[c] = (UNSAFE_PENALTY * (self._sealed_by(c, settled)
                                                         + (c in mouth)
-                                                        + (self.wedge_fill.get(c, 0) > low))
+                                                        + (c in fill and fill[c] > low))
                                       - DEPTH_BONUS * self.depth.get(c, 0)
                                       - self.enclosed_bonus * sum(n in settled
                                                              for n in neighbours_xy(c)))
