@@ -1210,6 +1210,18 @@ class _Heuristic(_Phase):
         return sum(1 for w in ring2(v) if w in self.goal and w not in self.occ
                    and not enterable(after, w, ob) and enterable(settled, w, ob))
 
+    def _waiting(self) -> set[Coord]:
+        """Voids the relays fill only when nothing else is left (they pay as much as
+        sealing a void): an opened lake's crater while the lake has voids (filled first,
+        it seals the lake again), and the cells of an emptied wedge above its lowest void
+        (refilled apex first, the peel backwards, else the apex is sealed)."""
+        occ, fill = self.occ, self.wedge_fill
+        wait = set(self.mouth) - occ if self.lake - occ else set()
+        low = min((lv for c, lv in fill.items() if c not in occ), default=None)
+        if low is not None:
+            wait |= {c for c, lv in fill.items() if lv > low and c not in occ}
+        return wait
+
     def _relay_step(self) -> bool:
         """Fill one void by the cheapest relay chain, and make its walks.
 
@@ -1226,10 +1238,7 @@ class _Heuristic(_Phase):
         if not targets:
             return False
         settled = occ & goal
-        # An opened lake's crater is refilled last: filled first, it seals the lake again.
-        mouth = self.mouth if self.lake - occ else set()
-        fill = self.wedge_fill
-        low = min((lv for c, lv in fill.items() if c not in occ), default=0)
+        wait = self._waiting()
         mobile = [k for k in sorted(occ) if self._mobile(k)]
         regions = {k: bfs(occ - {k}, k, obstacles) for k in mobile}
         penalty: dict[Coord, float] = {}
@@ -1241,8 +1250,7 @@ class _Heuristic(_Phase):
                     if c not in penalty:
                         # Voids whose filling seals others wait; enclosed ones go first.
                         penalty[c] = (UNSAFE_PENALTY * (self._sealed_by(c, settled)
-                                                        + (c in mouth)
-                                                        + (c in fill and fill[c] > low))
+                                                        + (c in wait))
                                       - DEPTH_BONUS * self.depth.get(c, 0)
                                       - self.enclosed_bonus * sum(n in settled
                                                              for n in neighbours_xy(c)))

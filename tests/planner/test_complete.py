@@ -601,6 +601,15 @@ def test_a_walled_in_electron_is_freed_by_emptying_a_wedge_and_the_wedge_refille
     assert not any(n not in cells for n in neighbours_xy(e))
     assert h._clear_wedge(e) and e not in h.occ and h.wedge_fill
     levels = h.wedge_fill
+    open_ = {c for c in levels if c not in h.occ}
+    low = min(levels[c] for c in open_)
+    above = {c for c in open_ if levels[c] > low}
+    assert above and h._waiting() == above
+    # Levels are a linear function of the cell, negative on some sides: the same cells
+    # wait, and no other void.
+    h.wedge_fill = {c: lv - 100 for c, lv in levels.items()}
+    assert h._waiting() == above
+    h.wedge_fill = levels
     for _ in range(4):          # apex first: each relay fills a void of the lowest level
         open_ = {c for c in levels if c not in h.occ}
         assert h._relay_step()
