@@ -105,8 +105,8 @@ filled first by local repairs (:func:`smooth`; the goal's smoothing is played
 backwards at the end), so fewer notches stop the walkers, the relays go further and
 less is dug; the shorter plan is kept (Eden blobs of 100 modules: 3.8x the bound on two
 of three seeds). Larger fleets go there only when digging alone is stuck, with
-advances and up to :data:`HOLE_CALLS_LARGE` digs (Eden blobs of 1000 modules: seeds 0
-and 3 solved, 5.7-8.2x the bound once shortened, 5-6 minutes). If that fails too, small fleets
+advances and up to :data:`HOLE_CALLS_LARGE` digs (Eden blobs of 1000 modules: seeds 0,
+2 and 3 solved, 5.7-10.6x the bound once shortened, 4-7 minutes). If that fails too, small fleets
 (``exact_limit`` modules or fewer) fall back to
 :mod:`planner_svc.search` from the current configuration, which also proves
 unreachability (moves are reversible, so unreachable from there is unreachable from
