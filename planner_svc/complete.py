@@ -104,9 +104,10 @@ On fleets of :data:`SMOOTH_LIMIT` modules or fewer the same is also tried betwee
 filled first by local repairs (:func:`smooth`; the goal's smoothing is played
 backwards at the end), so fewer notches stop the walkers, the relays go further and
 less is dug; the shorter plan is kept (Eden blobs of 100 modules: 3.8x the bound on two
-of three seeds). Larger fleets go there only when digging alone is stuck, with
-advances and up to :data:`HOLE_CALLS_LARGE` digs (Eden blobs of 1000 modules: seeds 0,
-2 and 3 solved, 5.7-10.6x the bound once shortened, 4-7 minutes). If that fails too, small fleets
+of three seeds). Larger fleets go there first, with advances and up to
+:data:`HOLE_CALLS_LARGE` digs, and dig alone only when that fails (Eden blobs of 1000
+modules: seeds 0, 2 and 3 solved, 5.7-10.6x the bound once shortened, 3.5-7 minutes;
+digging alone finished none of seeds 0-4). If that fails too, small fleets
 (``exact_limit`` modules or fewer) fall back to
 :mod:`planner_svc.search` from the current configuration, which also proves
 unreachability (moves are reversible, so unreachable from there is unreachable from
@@ -972,21 +973,25 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
             plan.notes.append("forward heuristic stuck; the reverse problem's plan played backwards")
             return False
     if not forward.ok:
-        # Last resort: the relays again, now digging holes open and filling them
-        # (:meth:`_Heuristic._hole_step`; long plans, but they reach the goal).
-        # It goes on from where the relays stopped (no other run failed here).
+        # Last resort: digging holes open and filling them (:meth:`_Heuristic._hole_step`;
+        # long plans, but they reach the goal), by the relays from where they stopped
+        # (no other run failed here), and through smoothed shapes: fewer notches stop the
+        # walkers, so relays go further and less is dug (Eden blobs of 100 modules: 3.8x
+        # the bound instead of 9x on two of three seeds). Small fleets try both and keep
+        # the shorter plan. Larger ones go through smoothed shapes first and dig alone
+        # only when that fails: on Eden blobs of 1000 modules (seeds 0-4) digging alone
+        # finished none, and it took 45 s before the smoothed run that finished.
         assert relays is not None
-        dug = Plan(plan.planner, p)
-        relays.dig_on(dug)
-        # Through smoothed shapes: fewer notches stop the walkers, so relays go further
-        # and less is dug (Eden blobs of 100 modules: 3.8x the bound instead of 9x on
-        # two of three seeds); the shorter plan is kept. Larger fleets only go there
-        # when digging alone is stuck (Eden blobs of 1000 modules, after 45 digs).
-        smoothed = Plan(plan.planner, p)
-        if (len(goal) <= SMOOTH_LIMIT or not dug.ok) and smoothed_plan(
-                smoothed, advance=advance,
-                hole_calls=HOLE_CALLS if len(goal) <= SMOOTH_LIMIT else HOLE_CALLS_LARGE) and (
-                not dug.ok or _shortened_difference(smoothed, dug) < 0):
+        large = len(goal) > SMOOTH_LIMIT
+        smoothed, dug = Plan(plan.planner, p), Plan(plan.planner, p)
+        through = large and smoothed_plan(smoothed, advance=advance,
+                                          hole_calls=HOLE_CALLS_LARGE)
+        if not through:
+            relays.dig_on(dug)
+        if not large:
+            through = smoothed_plan(smoothed, advance=advance, hole_calls=HOLE_CALLS) and (
+                not dug.ok or _shortened_difference(smoothed, dug) < 0)
+        if through:
             plan.steps, plan.ok = smoothed.steps, True
             plan.notes += smoothed.notes
             plan.notes.append("relays stuck; start and goal smoothed (notches filled), "

@@ -14,7 +14,7 @@ last the goal is the start scrambled:
   also between smoothed shapes (notches of start and goal filled first), solves the
   three of 100 modules (2.6-4.7x the bound once shortened, mean 3.4x, 11-20 s) and,
   with advances and a nearest-first peel for craters that end in a flat face, the one of
-  1000 (8.2x the bound, 4-5 minutes; of seeds 0-4, 0, 2 and 3 are solved).
+  1000 (8.2x the bound, about 3.5 minutes; of seeds 0-4, 0, 2 and 3 are solved).
 * **sparse**: random trees (:func:`random_sparse_problem`) in which no module has
   more than three occupied neighbours and no empty cell more than two, so walkers fit
   between branches. Note: these trees spread out (radius ~ n/4), so the bound and the
