@@ -982,13 +982,13 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
         # only when that fails: on Eden blobs of 1000 modules (seeds 0-4) digging alone
         # finished none, and it took 45 s before the smoothed run that finished.
         assert relays is not None
-        large = len(goal) > SMOOTH_LIMIT
         smoothed, dug = Plan(plan.planner, p), Plan(plan.planner, p)
-        through = large and smoothed_plan(smoothed, advance=advance,
-                                          hole_calls=HOLE_CALLS_LARGE)
-        if not through:
+        if len(goal) > SMOOTH_LIMIT:
+            through = smoothed_plan(smoothed, advance=advance, hole_calls=HOLE_CALLS_LARGE)
+            if not through:
+                relays.dig_on(dug)
+        else:
             relays.dig_on(dug)
-        if not large:
             through = smoothed_plan(smoothed, advance=advance, hole_calls=HOLE_CALLS) and (
                 not dug.ok or _shortened_difference(smoothed, dug) < 0)
         if through:
