@@ -12,8 +12,8 @@ from planner_svc.bounds import (assignment_lower_bound, random_blob, random_conv
                                 random_sparse_problem, random_sparse_tree, scramble,
                                 walk_reference)
 from planner_svc.plan import Plan, Problem, validate
-from planner_svc.rules import (articulation_cells, find_move, hex_distance, is_connected,
-                               neighbours_xy, to_move, xy)
+from planner_svc.rules import (RULE_OFFSETS, _rule_violation, articulation_cells, find_move,
+                               hex_distance, is_connected, neighbours_xy, to_move, xy)
 
 
 def _blobs(count, sizes, seed=7):
@@ -26,6 +26,42 @@ def test_is_cut_matches_the_articulation_points():
     for cells in _blobs(40, [3, 8, 20, 60]):
         cut = articulation_cells(cells)
         assert {c for c in cells if complete.is_cut(cells, c)} == cut
+
+
+def test_lone_steps_agree_with_the_move_rule():
+    # The neighbour-pattern table behind lone_steps gives exactly the Table 4-3 rows that
+    # the one legality rule allows, in its order, with obstacles and skipped goals.
+    rng = random.Random(11)
+    near = [(x, y) for x in range(-3, 4) for y in range(-3, 4) if hex_distance((0, 0), (x, y)) <= 2]
+    moving = 0
+    for trial in range(3000):
+        rest = {c for c in near if c != (0, 0) and rng.random() < rng.random()}
+        obstacles = {c for c in near if c not in rest and c != (0, 0) and rng.random() < 0.1}
+        skip = {c for c in near if rng.random() < 0.2} if trial % 3 == 0 else set()
+        blocked = lambda c: c in rest or c in obstacles  # noqa: E731
+        expected = [(rule, (g[0], g[1])) for rule, s, e, g in RULE_OFFSETS
+                    if g not in skip and _rule_violation(rest, blocked, (0, 0), s, e, g, ()) is None]
+        assert list(complete.lone_steps(rest, (0, 0), obstacles, skip)) == expected
+        moving += bool(expected)
+    assert 300 < moving < 2900
+
+
+def test_window_cut_test_agrees_with_the_plain_one():
+    # The window searches' cut test (still part's components found once) must answer
+    # exactly as a search of the whole structure, whatever the window holds.
+    rng = random.Random(5)
+    checked = 0
+    for cells in _blobs(6, [150, 300]):
+        for _ in range(20):
+            window = set(complete._disk(rng.choice(sorted(cells)), 3))
+            outside = cells - window
+            conf = frozenset((cells & window) ^ {c for c in window if rng.random() < 0.15})
+            cut = complete._window_cuts(window, outside)
+            full = outside | conf
+            for m in conf:
+                assert cut(conf, full, m) == complete.is_cut(full, m), m
+                checked += 1
+    assert checked > 2000
 
 
 def test_enterable_matches_the_move_rule():
