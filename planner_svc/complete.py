@@ -175,6 +175,9 @@ REPAIR_WEIGHT = 3
 HOLE_CALLS = 24
 #: Digs on the smoothed shapes of fleets over SMOOTH_LIMIT modules (the last resort there).
 HOLE_CALLS_LARGE = 100
+#: On those fleets, relays stuck with at most this many voids left dig from where they
+#: stopped before trying the smoothed shapes.
+FEW_VOIDS = 4
 HOLE_MAX = 12
 HOLE_PEELS = 80
 HOLE_PARK = 3
@@ -1021,8 +1024,15 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
         assert relays is not None
         smoothed, dug = Plan(plan.planner, p), Plan(plan.planner, p)
         if len(goal) > SMOOTH_LIMIT:
-            through = smoothed_plan(smoothed, advance=advance, hole_calls=HOLE_CALLS_LARGE)
-            if not through:
+            # A few voids left are a few digs from here (a scrambled blob of 1000
+            # modules, seed 1, sealed cave: 1706 moves in 6 s, the smoothed run 1954 in
+            # 33 s); more are dug through smoothed shapes first.
+            few = len(goal - relays.occ) <= FEW_VOIDS
+            if few:
+                relays.dig_on(dug, HOLE_CALLS_LARGE)
+            through = not dug.ok and smoothed_plan(smoothed, advance=advance,
+                                                   hole_calls=HOLE_CALLS_LARGE)
+            if not through and not dug.ok and not few:
                 relays.dig_on(dug)
         else:
             relays.dig_on(dug)
