@@ -99,15 +99,17 @@ corner reaches a module in the bulk; the relays carry the wedge's modules past t
 notches of its rough far side, where lone walks to parking cells stop.
 These plans are long (Eden blobs of 100 modules: up to 8x the bound, 4.7x once
 :mod:`planner_svc.shorten` has dropped their detours) but reach the goal.
-On fleets of :data:`SMOOTH_LIMIT` modules or fewer the same is also tried between
-*smoothed* shapes (:func:`smoothed_plan`): the notches of the start and of the goal are
-filled first by local repairs (:func:`smooth`; the goal's smoothing is played
-backwards at the end), so fewer notches stop the walkers, the relays go further and
-less is dug; the shorter plan is kept (Eden blobs of 100 modules: 3.8x the bound on two
-of three seeds). Larger fleets go there first, with advances and up to
-:data:`HOLE_CALLS_LARGE` digs, and dig alone only when that fails (Eden blobs of 1000
-modules: seeds 0, 2 and 3 solved, 5.7-10.6x the bound once shortened, 3.5-7 minutes;
-digging alone finished none of seeds 0-4). If that fails too, small fleets
+The same is also tried between *smoothed* shapes (:func:`smoothed_plan`): the notches
+of the start and of the goal are filled first by local repairs (:func:`smooth`; the
+goal's smoothing is played backwards at the end), so fewer notches stop the walkers, the
+relays go further and less is dug; the shorter plan is kept (Eden blobs of 100 modules:
+3.8x the bound on two of three seeds; on fleets over :data:`SMOOTH_LIMIT` modules, with
+advances and up to :data:`HOLE_CALLS_LARGE` digs). On those larger fleets, relays that
+stop with more than :data:`FEW_VOIDS` voids left have walled voids in: the relays from
+where phase 1 stopped and on the reverse problem are skipped, the smoothed shapes go
+first and plain digging runs only when they fail (Eden blobs of 1000 modules: seeds 0, 2
+and 3 solved, 5.7-10.6x the bound once shortened, 2-4 minutes; digging alone finished
+none of seeds 0-4). If that fails too, small fleets
 (``exact_limit`` modules or fewer) fall back to
 :mod:`planner_svc.search` from the current configuration, which also proves
 unreachability (moves are reversible, so unreachable from there is unreachable from
@@ -175,8 +177,9 @@ REPAIR_WEIGHT = 3
 HOLE_CALLS = 24
 #: Digs on the smoothed shapes of fleets over SMOOTH_LIMIT modules (the last resort there).
 HOLE_CALLS_LARGE = 100
-#: On those fleets, relays stuck with at most this many voids left dig from where they
-#: stopped before trying the smoothed shapes.
+#: On those fleets, relays stopped with more than this many voids left have walled voids
+#: in: only digging is tried, through smoothed shapes first. With this many or fewer the
+#: other relay runs go first, then digging both ways (the shorter plan is kept).
 FEW_VOIDS = 4
 HOLE_MAX = 12
 HOLE_PEELS = 80
@@ -982,6 +985,7 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
     _AssignWalk(first, occ).run()
     walked = occ == goal
     relays: _Heuristic | None = None
+    walled = False
     if walked:
         first.ok = True
         forward = first
@@ -994,17 +998,23 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
         forward = Plan(plan.planner, p)
         relays = _Heuristic(forward, advance=advance)
         relays.run()
+        # On large fleets, relays stopped with more than a few voids left have walled
+        # voids in (holes, lakes): the relays from where phase 1 stopped and on the
+        # reverse problem stop too (Eden blobs of 1000 modules, seeds 0-4: 19-68 voids
+        # left, 40 s spent), and only digging (the last resort) is tried. Scrambled blobs
+        # stop with at most 3 (seeds 0-9), where those runs often finish.
+        walled = len(goal) > SMOOTH_LIMIT and len(goal - relays.occ) > FEW_VOIDS
         # Carrying on from where phase 1 stopped is sometimes much shorter (scrambled
         # blobs of 100 modules: mean 1.52x the bound instead of 1.70x over seeds 0-9);
         # on large fleets it only runs when needed (the time target).
-        if not forward.ok or len(goal) <= SMOOTH_LIMIT:
+        if not walled and (not forward.ok or len(goal) <= SMOOTH_LIMIT):
             _Heuristic(first, start=occ, advance=advance).run()
             if first.ok and (not forward.ok or _shortened_difference(first, forward) < 0):
                 forward = first
     if front is not None and front.ok and (
             not forward.ok or _shortened_difference(front, forward) <= 0):
         forward = front
-    if not forward.ok:
+    if not forward.ok and not walled:
         backward = Plan(plan.planner, Problem(p.goal, p.initial, p.fixed, p.obstacles, p.name))
         _Heuristic(backward, advance=advance).run()
         if backward.ok:
@@ -1017,26 +1027,22 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
         # long plans, but they reach the goal), by the relays from where they stopped
         # (no other run failed here), and through smoothed shapes: fewer notches stop the
         # walkers, so relays go further and less is dug (Eden blobs of 100 modules: 3.8x
-        # the bound instead of 9x on two of three seeds). Small fleets try both and keep
-        # the shorter plan. Larger ones go through smoothed shapes first and dig alone
-        # only when that fails: on Eden blobs of 1000 modules (seeds 0-4) digging alone
-        # finished none, and it took 45 s before the smoothed run that finished.
+        # the bound instead of 9x on two of three seeds). Both are tried and the shorter
+        # plan kept: neither is always shorter (scrambled blobs of 1000 modules, seeds 1,
+        # 6 and 9: 1706, 2056 and 2968 moves digging from where the relays stopped,
+        # 1954, 942 and 3461 through smoothed shapes). Where voids are walled in (large
+        # fleets only), smoothed shapes go first and plain digging runs only when that
+        # fails: on Eden blobs of 1000 modules (seeds 0-4) it finished none, and took 45 s.
         assert relays is not None
         smoothed, dug = Plan(plan.planner, p), Plan(plan.planner, p)
-        if len(goal) > SMOOTH_LIMIT:
-            # A few voids left are a few digs from here (a scrambled blob of 1000
-            # modules, seed 1, sealed cave: 1706 moves in 6 s, the smoothed run 1954 in
-            # 33 s); more are dug through smoothed shapes first.
-            few = len(goal - relays.occ) <= FEW_VOIDS
-            if few:
-                relays.dig_on(dug, HOLE_CALLS_LARGE)
-            through = not dug.ok and smoothed_plan(smoothed, advance=advance,
-                                                   hole_calls=HOLE_CALLS_LARGE)
-            if not through and not dug.ok and not few:
+        calls = HOLE_CALLS_LARGE if len(goal) > SMOOTH_LIMIT else HOLE_CALLS
+        if walled:
+            through = smoothed_plan(smoothed, advance=advance, hole_calls=calls)
+            if not through:
                 relays.dig_on(dug)
         else:
-            relays.dig_on(dug)
-            through = smoothed_plan(smoothed, advance=advance, hole_calls=HOLE_CALLS) and (
+            relays.dig_on(dug, calls)
+            through = smoothed_plan(smoothed, advance=advance, hole_calls=calls) and (
                 not dug.ok or _shortened_difference(smoothed, dug) < 0)
         if through:
             plan.steps, plan.ok = smoothed.steps, True
