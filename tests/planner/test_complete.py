@@ -654,3 +654,28 @@ def test_a_walled_in_electron_is_freed_by_emptying_a_wedge_and_the_wedge_refille
     h.run()
     assert plan.ok
     validate(plan.steps, problem.initial, problem.goal, problem.fixed, problem.obstacles)
+
+
+@pytest.mark.parametrize("few_voids, walled", [(0, True), (1, False)])
+def test_relays_that_wall_voids_in_go_straight_to_digging(monkeypatch, few_voids, walled):
+    # Eden 20 seed 7: the relays stop with 1 void left. Counted as a large fleet, with
+    # fewer allowed the voids are walled in: neither the relays from where phase 1
+    # stopped nor those on the reverse problem run (on Eden 1000 they never finish),
+    # and the last resort still reaches the goal. With more allowed, both run.
+    monkeypatch.setattr(complete, "SMOOTH_LIMIT", 10)
+    monkeypatch.setattr(complete, "FEW_VOIDS", few_voids)
+    p = random_problem(20, 7)
+    runs = []
+    init = complete._Heuristic.__init__
+
+    def spy(self, plan, *args, **kwargs):
+        runs.append("reverse" if plan.problem.initial == p.goal else
+                    "phase 1" if kwargs.get("start") is not None and not kwargs.get("holes")
+                    else "other")
+        init(self, plan, *args, **kwargs)
+    monkeypatch.setattr(complete._Heuristic, "__init__", spy)
+    plan = Plan("complete", p)
+    complete.plan_complete(plan)
+    assert plan.ok
+    validate(plan)
+    assert ("reverse" in runs) is not walled and ("phase 1" in runs) is not walled
