@@ -12,9 +12,9 @@ last the goal is the start scrambled:
   relays and local exchanges of ``complete`` stall on the instances of 100 and 1000
   modules; its last resort, hole digging (planned peels played forward and back),
   also between smoothed shapes (notches of start and goal filled first), solves the
-  three of 100 modules (2.6-4.7x the bound once shortened, mean 3.4x, 7-13 s) and,
+  three of 100 modules (2.6-4.7x the bound once shortened, mean 3.4x, 8-16 s) and,
   with advances and a nearest-first peel for craters that end in a flat face, the one of
-  1000 (8.2x the bound, about 2.5 minutes; of seeds 0-4, 0, 2 and 3 are solved).
+  1000 (8.2x the bound, 2-2.5 minutes; of seeds 0-4, 0, 2 and 3 are solved).
 * **sparse**: random trees (:func:`random_sparse_problem`) in which no module has
   more than three occupied neighbours and no empty cell more than two, so walkers fit
   between branches. Note: these trees spread out (radius ~ n/4), so the bound and the
