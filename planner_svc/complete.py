@@ -107,9 +107,9 @@ relays go further and less is dug; the shorter plan is kept (Eden blobs of 100 m
 advances and up to :data:`HOLE_CALLS_LARGE` digs). On those larger fleets, relays that
 stop with more than :data:`FEW_VOIDS` voids left have walled voids in: the relays from
 where phase 1 stopped and on the reverse problem are skipped, the smoothed shapes go
-first and plain digging runs only when they fail (Eden blobs of 1000 modules: seeds 0, 2
-and 3 solved, 5.7-10.6x the bound once shortened, 2-4 minutes; digging alone finished
-none of seeds 0-4). If that fails too, small fleets
+first and plain digging runs only when they fail (Eden blobs of 1000 modules: seeds 0
+and 2 solved that way, seed 3 by the plain digging after, 6.3-10.6x the bound once
+shortened, 2-4 minutes). If that fails too, small fleets
 (``exact_limit`` modules or fewer) fall back to
 :mod:`planner_svc.search` from the current configuration, which also proves
 unreachability (moves are reversible, so unreachable from there is unreachable from
