@@ -230,14 +230,19 @@ def is_cut(occ: set[Coord], c: Coord, limit: int | None = None) -> bool:
 
     Local test first: if the occupied neighbours of ``c`` form one contiguous arc they
     stay connected to each other around ``c``, so the rest stays connected. Otherwise
-    a breadth-first search from one neighbour must reach the others without ``c``.
-    With ``limit``, a search that explores more than ``limit`` cells answers True:
-    conservative (True may be wrong, the module then only waits; False never is).
+    searches from the arcs must meet without ``c`` (:func:`_arcs_meet`).
+    With ``limit``, a breadth-first search from one neighbour that explores more than
+    ``limit`` cells answers True: conservative (True may be wrong, the module then only
+    waits; False never is).
     """
     x, y = c
     mask = _ring_mask(occ, x, y)
     if _ONE_ARC[mask]:
         return False
+    if limit is None:
+        # One neighbour per arc: the first of each run of occupied neighbours.
+        return not _arcs_meet(occ, c, [(x + dx, y + dy) for i, (dx, dy) in enumerate(_DIRS)
+                                       if mask >> i & 1 and not mask >> (i - 1) % 6 & 1])
     nbrs = [(x + dx, y + dy) for i, (dx, dy) in enumerate(_DIRS) if mask >> i & 1]
     want = set(nbrs[1:])
     seen = {c, nbrs[0]}
@@ -255,6 +260,56 @@ def is_cut(occ: set[Coord], c: Coord, limit: int | None = None) -> bool:
         if limit is not None and len(seen) > limit:
             return True
     return True
+
+
+def _arcs_meet(occ: set[Coord], c: Coord, starts: list[Coord]) -> bool:
+    """Whether the cells of ``starts`` stay connected in ``occ`` without ``c``.
+
+    One breadth-first search per start, in turn a cell each; searches that touch
+    merge. The answer comes when all have merged (connected) or when a merged group
+    has nothing left to explore (it is a component without the others). So a cut
+    costs about the smaller side, times the number of arcs, not the whole structure
+    (a plain search from one side explores all of it when it starts on the big one).
+    """
+    k = len(starts)
+    owner: dict[Coord, int] = {c: -1}
+    group = list(range(k))                      # union-find over the searches
+    pending = [1] * k                           # cells queued, per group root
+    todo = [deque([s]) for s in starts]
+    for i, s in enumerate(starts):
+        owner[s] = i
+
+    def root(i: int) -> int:
+        while group[i] != i:
+            group[i] = group[group[i]]
+            i = group[i]
+        return i
+
+    groups = k
+    while True:
+        for i in range(k):
+            if not todo[i]:
+                continue
+            a, b = todo[i].popleft()
+            r = root(i)
+            pending[r] -= 1
+            for dx, dy in _DIRS:
+                n = (a + dx, b + dy)
+                if n not in occ:
+                    continue
+                o = owner.get(n)
+                if o is None:
+                    owner[n] = i
+                    todo[i].append(n)
+                    pending[r] += 1
+                elif o >= 0 and (ro := root(o)) != r:
+                    group[ro] = r
+                    pending[r] += pending[ro]
+                    groups -= 1
+                    if groups == 1:
+                        return True
+            if pending[r] == 0:
+                return False
 
 
 def can_move(occ: set[Coord], c: Coord, obstacles: set[Coord]) -> bool:

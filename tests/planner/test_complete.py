@@ -22,8 +22,18 @@ def _blobs(count, sizes, seed=7):
 
 
 def test_is_cut_matches_the_articulation_points():
-    # The local arc test plus search must agree with networkx everywhere.
-    for cells in _blobs(40, [3, 8, 20, 60]):
+    # The local arc test plus the searches from each arc must agree with networkx
+    # everywhere: small and large blobs, trees (every branch module a cut) and a
+    # scrambled goal (tendrils, enclosed cavities).
+    # (0, 0) with three arcs, two joined by a loop around it and a tail on the third
+    # (a cut), and the same with the tail looped back too (no cut).
+    loop = {(0, 0), (-1, 1), (-1, 2), (0, 2), (1, 1), (1, 0), (0, -1), (0, -2)}
+    looped = loop - {(0, -2)} | {(1, -2), (2, -2), (2, -1), (2, 0)}
+    assert complete.is_cut(loop, (0, 0)) and not complete.is_cut(looped, (0, 0))
+    shapes = _blobs(40, [3, 8, 20, 60]) + _blobs(2, [400]) + [
+        random_sparse_tree(200, random.Random(4)), loop, looped,
+        {xy(c) for c in random_scrambled_problem(300, 1).goal}]
+    for cells in shapes:
         cut = articulation_cells(cells)
         assert {c for c in cells if complete.is_cut(cells, c)} == cut
 
