@@ -109,7 +109,7 @@ stop with more than :data:`FEW_VOIDS` voids left have walled voids in: the relay
 where phase 1 stopped and on the reverse problem are skipped, the smoothed shapes go
 first and plain digging runs only when they fail (Eden blobs of 1000 modules: seeds 0
 and 2 solved that way, seed 3 by the plain digging after, 6.3-10.6x the bound once
-shortened, 2-4 minutes). If that fails too, small fleets
+shortened, 1.5-4 minutes). If that fails too, small fleets
 (``exact_limit`` modules or fewer) fall back to
 :mod:`planner_svc.search` from the current configuration, which also proves
 unreachability (moves are reversible, so unreachable from there is unreachable from
