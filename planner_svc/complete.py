@@ -241,8 +241,8 @@ def is_cut(occ: set[Coord], c: Coord, limit: int | None = None) -> bool:
         return False
     if limit is None:
         # One neighbour per arc: the first of each run of occupied neighbours.
-        return not _arcs_meet(occ, c, [(x + dx, y + dy) for i, (dx, dy) in enumerate(_DIRS)
-                                       if mask >> i & 1 and not mask >> (i - 1) % 6 & 1])
+        return not _arcs_meet(occ, c, [(x + _DIRS[i][0], y + _DIRS[i][1])
+                                       for i in _ARC_STARTS[mask]])
     nbrs = [(x + dx, y + dy) for i, (dx, dy) in enumerate(_DIRS) if mask >> i & 1]
     want = set(nbrs[1:])
     seen = {c, nbrs[0]}
@@ -371,10 +371,12 @@ def _ring_rules() -> tuple[tuple[tuple[MoveRule, Coord, tuple[Coord, ...]], ...]
 
 
 _RING_RULES = _ring_rules()
-#: Per neighbour pattern: at most one contiguous arc of occupied neighbours (they stay
-#: connected around the cell, so it is no cut vertex).
-_ONE_ARC = tuple(sum(1 for i in range(6) if m >> i & 1 and not m >> (i - 1) % 6 & 1) <= 1
-                 for m in range(64))
+#: Per neighbour pattern: the first direction (:data:`_DIRS` index) of each contiguous arc
+#: of occupied neighbours.
+_ARC_STARTS = tuple(tuple(i for i in range(6) if m >> i & 1 and not m >> (i - 1) % 6 & 1)
+                    for m in range(64))
+#: At most one arc: the neighbours stay connected around the cell, so it is no cut vertex.
+_ONE_ARC = tuple(len(starts) <= 1 for starts in _ARC_STARTS)
 
 
 def _ring_mask(cells: set[Coord] | frozenset[Coord], x: int, y: int) -> int:
