@@ -123,7 +123,7 @@ import bisect
 import functools
 import heapq
 import itertools
-from collections import deque
+from collections import Counter, deque
 from typing import Callable, Iterable, Iterator
 
 from bus.lattice import NEIGHBOUR_OFFSET, Cell, Side
@@ -1240,6 +1240,8 @@ class _Heuristic(_Phase):
         self.exchange_failed: set[Coord] = set()
         #: (electron, configuration) pairs whose local advance failed.
         self.advance_failed: set[tuple[Coord, frozenset[Coord]]] = set()
+        #: Window searches that failed, by what decides them (:func:`_window_search`).
+        self.window_failed: set[tuple] = set()
         self.advance = advance
         self.advance_budget = ADVANCE_CALLS
         #: Planned hole fills left (:meth:`_hole_step`; only when ``holes``).
@@ -1856,7 +1858,8 @@ class _Heuristic(_Phase):
                 if d <= radius:
                     near.append((d, v))
         for _, v in sorted(near):
-            path = local_exchange(occ, goal, self.fixed, self.obstacles, v, radius, budget)
+            path = local_exchange(occ, goal, self.fixed, self.obstacles, v, radius, budget,
+                                  self.window_failed)
             if path:
                 self._do_walk(path)
                 self.exchange_failed.clear()
@@ -1907,7 +1910,8 @@ class _Heuristic(_Phase):
             if self.advance_budget <= 0:
                 return False
             self.advance_budget -= 1
-            path = local_advance(occ, goal, self.fixed, ob, e, radius, budget, dist, self.seen)
+            path = local_advance(occ, goal, self.fixed, ob, e, radius, budget, dist, self.seen,
+                                 self.window_failed)
             if path:
                 self._do_walk(path)
                 return True
@@ -1928,7 +1932,8 @@ class _Heuristic(_Phase):
                 self.repair_budget -= 1
                 if (t, radius) in self.repair_failed:
                     continue
-                path = local_repair(occ, goal, self.fixed, self.obstacles, t, radius, budget)
+                path = local_repair(occ, goal, self.fixed, self.obstacles, t, radius, budget,
+                                    self.window_failed)
                 if path is None:
                     self.repair_failed.add((t, radius))
                     continue
@@ -2006,7 +2011,8 @@ def smoothed_plan(plan: Plan, *, advance: bool = False, hole_calls: int = HOLE_C
 
 
 def local_repair(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set[Coord],
-                 target: Coord, radius: int, budget: int) -> Path | None:
+                 target: Coord, radius: int, budget: int,
+                 failed: set[tuple] | None = None) -> Path | None:
     """Best-first search for a short sequence of rotations, inside a window of ``radius``
     around ``target``, that fills a blocked void at ``target`` (or empties a trapped
     electron's cell) while every settled goal cell of the window stays occupied, except
@@ -2014,7 +2020,8 @@ def local_repair(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set
 
     This digs a pocket open and closes it again behind the new module: the vacancy
     moves out to the surface, where relays can fill it. The rest of the structure stays
-    still, so connectivity is checked on the whole of it.
+    still, so connectivity is checked on the whole of it. ``failed``: see
+    :func:`_window_search` (``goal`` must be the same at every call with it).
     """
     window = set(_disk(target, radius))
     outside = occ - window
@@ -2032,14 +2039,14 @@ def local_repair(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set
         return ((target not in conf) if fill else (target in conf)) + missing(conf)
 
     # Weighted: the score counts cells, a repair needs several moves each.
-    found, _ = best_first(start, _window_moves(window, outside, fixed, obstacles),
+    return _window_search(occ, window, outside, target, radius, fixed, obstacles,
                           lambda conf: score(conf) == 0,
-                          lambda g, conf: g + REPAIR_WEIGHT * score(conf), budget)
-    return None if found is None else [(m, rule) for _, m, rule in found]
+                          lambda g, conf: g + REPAIR_WEIGHT * score(conf), budget,
+                          failed, ("repair",))
 
 
 def _window_moves(window: set[Coord], outside: set[Coord], fixed: Coord,
-                  obstacles: set[Coord]):
+                  obstacles: set[Coord], components: _Components | None = None):
     """Successors for a search inside ``window`` with the structure ``outside`` it still:
     every legal rotation of a module of the window to a cell of the window.
 
@@ -2047,7 +2054,7 @@ def _window_moves(window: set[Coord], outside: set[Coord], fixed: Coord,
     table of them (module -> rotations into the window) is its parent's with the modules
     near the two cells that changed looked up again (the searches spent most of their
     time here)."""
-    is_cut_in = _window_cuts(window, outside)
+    is_cut_in = _window_cuts(window, outside, components)
     tables: dict[frozenset[Coord], dict[Coord, list[tuple[MoveRule, Coord]]]] = {}
     #: A configuration generated and not yet expanded -> (its parent, cell left, cell entered).
     made: dict[frozenset[Coord], tuple[frozenset[Coord], Coord, Coord]] = {}
@@ -2085,15 +2092,13 @@ def _window_moves(window: set[Coord], outside: set[Coord], fixed: Coord,
     return successors
 
 
-def _window_cuts(window: set[Coord], outside: set[Coord]
-                 ) -> Callable[[frozenset[Coord], set[Coord], Coord], bool]:
-    """``is_cut(conf, full, m)`` for the structure ``full = outside | conf``, ``conf`` inside
-    ``window`` and ``outside`` still: exact, and as quick as a search of the window.
+#: The still part of a window search: cell -> component, and each component's *ports*
+#: (the window cells next to it).
+_Components = tuple[dict[Coord, int], list[set[Coord]]]
 
-    The still part's connected components are found once; a search from a neighbour of
-    ``m`` then crosses each component in one step, entering the window again at the
-    cells next to it (on a blob of 1000 modules, a plain search around the window
-    explores hundreds of cells per test)."""
+
+def _still_components(window: set[Coord], outside: set[Coord]) -> _Components:
+    """The connected components of ``outside`` and their ports into ``window``."""
     label: dict[Coord, int] = {}
     ports: list[set[Coord]] = []
     for c in outside:
@@ -2110,6 +2115,19 @@ def _window_cuts(window: set[Coord], outside: set[Coord]
                     label[n] = k
                     todo.append(n)
         ports.append(port)
+    return label, ports
+
+
+def _window_cuts(window: set[Coord], outside: set[Coord], components: _Components | None = None
+                 ) -> Callable[[frozenset[Coord], set[Coord], Coord], bool]:
+    """``is_cut(conf, full, m)`` for the structure ``full = outside | conf``, ``conf`` inside
+    ``window`` and ``outside`` still: exact, and as quick as a search of the window.
+
+    The still part's connected components (:func:`_still_components`) are found once; a
+    search from a neighbour of ``m`` then crosses each component in one step, entering
+    the window again at its ports (on a blob of 1000 modules, a plain search around the
+    window explores hundreds of cells per test)."""
+    label, ports = components or _still_components(window, outside)
 
     def node(c: Coord, conf: frozenset[Coord]) -> Coord | int | None:
         if c in conf:
@@ -2138,7 +2156,8 @@ def _window_cuts(window: set[Coord], outside: set[Coord]
 
 
 def local_exchange(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set[Coord],
-                   center: Coord, radius: int, budget: int) -> Path | None:
+                   center: Coord, radius: int, budget: int,
+                   failed: set[tuple] | None = None) -> Path | None:
     """Best-first search, inside a window of ``radius`` around ``center``, for rotations
     after which the window holds one electron and one void fewer (an electron of the
     window has, directly or through settled modules moving aside and back, filled a void
@@ -2146,6 +2165,7 @@ def local_exchange(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: s
 
     Where the relays find no chain the trouble is often local: the electron is walled in
     and the void sits behind a notch a few cells away; here they trade places.
+    ``failed``: see :func:`_window_search` (the same ``goal`` at every call with it).
     """
     window = set(_disk(center, radius))
     outside = occ - window
@@ -2161,10 +2181,9 @@ def local_exchange(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: s
         return REPAIR_WEIGHT * defects(conf) + gap
 
     goal_defects = defects(start) - 2
-    found, _ = best_first(start, _window_moves(window, outside, fixed, obstacles),
+    return _window_search(occ, window, outside, center, radius, fixed, obstacles,
                           lambda conf: defects(conf) <= goal_defects,
-                          lambda g, conf: g + estimate(conf), budget)
-    return None if found is None else [(m, rule) for _, m, rule in found]
+                          lambda g, conf: g + estimate(conf), budget, failed, ("exchange",))
 
 
 def surface_field(occ: set[Coord], voids: set[Coord],
@@ -2200,14 +2219,16 @@ def surface_distance(field: dict[Coord, int]) -> Callable[[Coord], int]:
 
 def local_advance(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set[Coord],
                   centre: Coord, radius: int, budget: int, dist: Callable[[Coord], int],
-                  seen: set[frozenset[Coord]]) -> Path | None:
+                  seen: set[frozenset[Coord]], failed: set[tuple] | None = None) -> Path | None:
     """Best-first search, inside a window of ``radius`` around the electron at
     ``centre``, for rotations that bring the window's electrons :data:`ADVANCE_GAIN`
     nearer the voids in total (``dist``: :func:`surface_distance`, capped at
     :data:`ADVANCE_CAP` each) without emptying a goal cell or repeating a configuration
     of ``seen``. Settled modules may step aside and back: an electron stopped by a notch
-    gets past it."""
-    window = set(_disk(centre, radius))
+    gets past it. ``failed``: see :func:`_window_search` (the same ``goal`` at every call
+    with it)."""
+    cells = _disk(centre, radius)
+    window = set(cells)
     outside = occ - window
     start = frozenset(occ & window)
     want = goal & window
@@ -2217,17 +2238,56 @@ def local_advance(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: se
         return sum(min(dist(c), ADVANCE_CAP) for c in conf - goal)
 
     aim = potential(start) - ADVANCE_GAIN
+    # ``seen`` holds whole configurations: a failure it decided is not the window's alone.
+    refused = []
 
     def done(conf: frozenset[Coord]) -> bool:
-        return (want - conf <= missing and potential(conf) <= aim
-                and frozenset(outside | conf) not in seen)
+        if want - conf <= missing and potential(conf) <= aim:
+            if frozenset(outside | conf) not in seen:
+                return True
+            refused.append(conf)
+        return False
 
     def priority(g: int, conf: frozenset[Coord]) -> int:
         return g + REPAIR_WEIGHT * len(want - conf - missing) + max(0, potential(conf) - aim)
 
-    found, _ = best_first(start, _window_moves(window, outside, fixed, obstacles),
-                          done, priority, budget)
-    return None if found is None else [(m, rule) for _, m, rule in found]
+    far = tuple(min(dist(c), ADVANCE_CAP) for c in cells)
+    return _window_search(occ, window, outside, centre, radius, fixed, obstacles, done,
+                          priority, budget, failed, ("advance", far), lambda: not refused)
+
+
+def _window_search(occ: set[Coord], window: set[Coord], outside: set[Coord], centre: Coord,
+                   radius: int, fixed: Coord, obstacles: set[Coord],
+                   is_goal: Callable[[frozenset[Coord]], bool],
+                   priority: Callable[[int, frozenset[Coord]], int], budget: int,
+                   failed: set[tuple] | None, tag: tuple,
+                   exact: Callable[[], bool] = lambda: True) -> Path | None:
+    """Best-first search (:func:`planner_svc.search.best_first`) for rotations inside
+    ``window``, the disk of ``radius`` around ``centre``, with ``outside`` still.
+
+    Such a search is decided by the cells within two of the window (rotations look no
+    further), how the still part's components meet the window (cut tests), the budget,
+    and what the caller's ``tag`` adds (its goal being fixed). Failures are kept in
+    ``failed`` under that key and not searched again, unless ``exact()`` says the search
+    looked beyond it: runs tried the same windows again after every success elsewhere,
+    and on scrambled blobs of 1000 modules failed searches, most of them repeats, took
+    three quarters of the time."""
+    components = _still_components(window, outside)
+    key = None
+    if failed is not None:
+        near = frozenset(c for c in _disk(centre, radius + 2) if c in occ)
+        meets = frozenset(Counter(frozenset(port) for port in components[1] if port).items())
+        key = (centre, radius, budget, near, meets, *tag)
+        if key in failed:
+            return None
+    found, _ = best_first(frozenset(occ & window),
+                          _window_moves(window, outside, fixed, obstacles, components),
+                          is_goal, priority, budget)
+    if found is None:
+        if key is not None and exact():
+            failed.add(key)
+        return None
+    return [(m, rule) for _, m, rule in found]
 
 
 def _finish_small(plan: Plan, occ: set[Coord], exact_limit: int) -> None:

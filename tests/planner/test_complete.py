@@ -724,3 +724,69 @@ def test_window_successors_match_a_search_from_scratch():
                     seen.add(nxt)
                     todo.append(nxt)
     assert checked > 100
+
+
+def test_failed_window_searches_are_remembered_by_what_decides_them():
+    # A hexagonal ring of radius 8: its corner (8, 0) can rotate outwards only while the
+    # ring is closed far away (else it is a cut vertex). The failure on the broken ring
+    # is remembered and answers for a ring broken elsewhere (same window, same cuts),
+    # but not for the closed ring: far connectivity is part of what decides a search.
+    ring = {(x, y) for x in range(-8, 9) for y in range(-8, 9) if hex_distance((0, 0), (x, y)) == 8}
+    corner = (8, 0)
+    (_, out), *_ = complete.lone_steps(ring - {corner}, corner, set())
+    goal = ring - {corner} | {out}
+    failed: set = set()
+
+    def exchange(occ, memo):
+        return complete.local_exchange(occ, goal & occ | {out}, (0, 0), set(), corner, 2, 300, memo)
+
+    assert exchange(ring - {(-8, 0)}, failed) is None and len(failed) == 1
+    assert exchange(ring - {(-8, 3)}, failed) is None and len(failed) == 1
+    assert exchange(ring - {(-8, 3)}, None) is None
+    assert exchange(ring, failed) == [(corner, next(r for r, d in complete.lone_steps(
+        ring - {corner}, corner, set()) if d == out))]
+    # On random blobs, a remembered failure answers only where a fresh search fails too.
+    rng = random.Random(21)
+    answered = 0
+    for cells in _blobs(4, [200]):
+        failed = set()
+        for _ in range(12):
+            target = rng.choice(sorted(cells))
+            if complete.local_repair(cells, cells - {target}, (0, 0), set(), target, 3, 40,
+                                     failed) is not None:
+                continue
+            # One rotation of a module far from the window.
+            c, d = next((c, d) for c in sorted(cells) if hex_distance(c, target) > 6
+                        and not complete.is_cut(cells, c)
+                        for _, d in complete.lone_steps(cells - {c}, c, set()))
+            moved = cells - {c} | {d}
+            before = len(failed)
+            memo = complete.local_repair(moved, cells - {target}, (0, 0), set(), target, 3, 40, failed)
+            fresh = complete.local_repair(moved, cells - {target}, (0, 0), set(), target, 3, 40)
+            if len(failed) == before:
+                answered += 1
+                assert memo is None and fresh is None
+    assert answered > 5
+
+
+def test_advance_failures_refused_by_seen_configurations_are_not_remembered():
+    # A local advance may fail only because every configuration it reached was seen
+    # before (whole configurations, not the window's): that failure is not the
+    # window's, so it is not remembered, and with fewer seen the search succeeds again.
+    p = random_problem(40, 0)
+    occ, goal = {xy(c) for c in p.initial}, {xy(c) for c in p.goal}
+    dist = complete.surface_distance(complete.surface_field(occ, goal - occ))
+    e = sorted(occ - goal)[0]
+    seen, failed = {frozenset(occ)}, set()
+
+    def advance(seen):
+        return complete.local_advance(occ, goal, xy(p.fixed), set(), e, 2, 40, dist, seen, failed)
+
+    path, rounds = advance(seen), 0
+    while path is not None:
+        after = set(occ)
+        complete.play(after, path)
+        seen.add(frozenset(after))
+        path, rounds = advance(seen), rounds + 1
+    assert rounds > 3 and not failed
+    assert advance({frozenset(occ)}) is not None
