@@ -1964,12 +1964,15 @@ def smooth(occ: set[Coord], fixed: Coord, obstacles: set[Coord]) -> list[list[Mo
     steps: list[list[Move]] = []
     radius, budget = SMOOTH_WINDOW
     failed: set[Coord] = set()
+    # Each search's goal (the structure plus the notch) is decided by its window's key.
+    searches_failed: set[tuple] = set()
     count = len(notches(occ, obstacles))
     while True:
         for n in notches(occ, obstacles):
             if n in failed:
                 continue
-            path = local_repair(occ, occ | {n}, fixed, obstacles, n, radius, budget)
+            path = local_repair(occ, occ | {n}, fixed, obstacles, n, radius, budget,
+                                searches_failed)
             trial = set(occ)
             moves = play(trial, path or [])
             after = len(notches(trial, obstacles)) if moves else count
@@ -2021,7 +2024,8 @@ def local_repair(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set
     This digs a pocket open and closes it again behind the new module: the vacancy
     moves out to the surface, where relays can fill it. The rest of the structure stays
     still, so connectivity is checked on the whole of it. ``failed``: see
-    :func:`_window_search` (``goal`` must be the same at every call with it).
+    :func:`_window_search` (near the window, ``goal`` must be the same at every call
+    with it, or decided by the structure there).
     """
     window = set(_disk(target, radius))
     outside = occ - window
@@ -2267,7 +2271,8 @@ def _window_search(occ: set[Coord], window: set[Coord], outside: set[Coord], cen
 
     Such a search is decided by the cells within two of the window (rotations look no
     further), how the still part's components meet the window (cut tests), the budget,
-    and what the caller's ``tag`` adds (its goal being fixed). Failures are kept in
+    and what the caller's ``tag`` adds (its goal near the window being fixed, or decided by
+    the cells there). Failures are kept in
     ``failed`` under that key and not searched again, unless ``exact()`` says the search
     looked beyond it: runs tried the same windows again after every success elsewhere,
     and on scrambled blobs of 1000 modules failed searches, most of them repeats, took

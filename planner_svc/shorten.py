@@ -9,7 +9,10 @@ it had. Modules are interchangeable, so a serial plan is a path through configur
 * **round trips**: a module leaves a cell and its later moves bring it back there (a
   step aside and back, or a longer detour); if every other move in between is still
   legal with that module waiting in its cell (its Table 4-3 row and the connectivity
-  of the rest), the trip goes.
+  of the rest), the trip goes. Trips are tried from the last to start to the first, so
+  the trips nested in one are decided before it: a step aside inside a detour goes
+  first and frees the detour in the same pass (forwards, each pass freed one level:
+  29 passes instead of 3 on an Eden blob of 1000 modules).
 
 The result is rebuilt move by move on the configuration of its time (the joints a move
 releases depend on who is next to it then) and checked as it is built; should any move
@@ -19,6 +22,7 @@ fail that check, the plan is returned unchanged.
 from __future__ import annotations
 
 import random
+from typing import Iterable
 
 from .complete import is_cut, lone_steps
 from .plan import Plan
@@ -26,8 +30,8 @@ from .rules import Coord, Move, MoveRule, to_move, xy
 
 #: Moves a round trip may span (the moves in between are rechecked).
 RETURN_SPAN = 2000
-#: Rounds of both rewrites at most: dropping a trip can free the one around it, so
-#: rounds repeat until one changes nothing (Eden blob of 100 modules: 13 rounds).
+#: Rounds of both rewrites at most: dropping a loop or a trip can free another, so
+#: rounds repeat until one changes nothing (Eden blobs: 2-3 rounds).
 ROUNDS = 100
 
 Hop = tuple[Coord, Coord]
@@ -79,7 +83,14 @@ def drop_round_trips(initial: set[Coord], hops: list[Hop], fixed: Coord,
                      obstacles: set[Coord] | frozenset[Coord]) -> list[Hop]:
     """``hops`` without the round trips that nothing in between needs: a module leaves
     a cell and, within :data:`RETURN_SPAN` moves, comes back to it, and every other
-    move in between is still legal with it waiting there."""
+    move in between is still legal with it waiting there.
+
+    Trips are tried latest start first, each on the plan's own configuration before it
+    (nothing before a trip is dropped yet) and with the trips already dropped left out.
+    Dropping one changes the configurations inside its span only, so every move kept
+    has been checked on its final configuration by the earliest dropped trip around
+    it. A trip sharing a move with a dropped trip that ends after it is kept: dropping
+    both would leave its module where its next move does not start."""
     n = len(hops)
     # The index of the next move of the module a move brings to its goal cell (it is
     # the next move out of that cell), and of the move that first brings that module
@@ -104,29 +115,36 @@ def drop_round_trips(initial: set[Coord], hops: list[Hop], fixed: Coord,
         for k in reversed(chain):
             back[k] = arrives.get(hops[k][0])
             arrives[hops[k][1]] = k
+    #: Whether a move is dropped, and the last move of the trip it was dropped with.
     gone = [False] * n
-    occ = set(initial)              # the configuration before hops[i], trips dropped
-    for i in range(n):
-        if gone[i]:
-            continue
-        a, b = hops[i]
-        end = back[i]
-        if end is not None and end - i <= RETURN_SPAN:
-            trip = [i]
-            while trip[-1] != end:
-                trip.append(nxt[trip[-1]])
-            mine = set(trip)
-            between = [hops[k] for k in range(i + 1, end) if not gone[k] and k not in mine]
-            if _still_legal(occ, between, fixed, obstacles):
-                for k in trip:
-                    gone[k] = True
-                continue
+    gone_end = [0] * n
+    occ = set(initial)
+    for a, b in hops:
         occ.discard(a)
         occ.add(b)
+    for i in range(n - 1, -1, -1):
+        a, b = hops[i]
+        occ.discard(b)              # now the configuration before hops[i]
+        occ.add(a)
+        end = back[i]
+        if end is None or end - i > RETURN_SPAN:
+            continue
+        trip = [i]
+        while trip[-1] != end:
+            trip.append(nxt[trip[-1]])
+        if any(gone[k] and gone_end[k] > end for k in trip):
+            continue
+        mine = set(trip)
+        # Lazily: most checks fail within a few moves of spans of hundreds.
+        between = (hops[k] for k in range(i + 1, end) if not gone[k] and k not in mine)
+        if _still_legal(occ, between, fixed, obstacles):
+            for k in trip:
+                if not gone[k]:
+                    gone[k], gone_end[k] = True, end
     return [h for h, g in zip(hops, gone) if not g]
 
 
-def _still_legal(occ: set[Coord], hops: list[Hop], fixed: Coord,
+def _still_legal(occ: set[Coord], hops: Iterable[Hop], fixed: Coord,
                  obstacles: set[Coord] | frozenset[Coord]) -> bool:
     """Whether ``hops`` can all be made, in order, from ``occ`` (left unchanged)."""
     made: list[Hop] = []

@@ -95,6 +95,28 @@ def test_a_long_round_trip_goes_when_nothing_needs_it():
     assert drop_round_trips(start, trip + back, (0, 0), frozenset()) == []
 
 
+def test_nested_round_trips_go_in_one_pass():
+    # X steps aside from (1, 1), Y steps into it and back, X steps back. X's trip is
+    # needed only while Y's is there: trips are decided latest first, so Y's goes, then
+    # X's, in the same pass (deciding X's first kept it for another round).
+    start = {(0, 0), (1, 0), (2, 0), (1, 1)}
+    hops = [((1, 1), (0, 1)), ((2, 0), (1, 1)), ((1, 1), (2, 0)), ((0, 1), (1, 1))]
+    assert drop_round_trips(start, hops, (0, 0), frozenset()) == []
+
+
+def test_overlapping_round_trips_of_one_module_keep_it_on_its_path():
+    # One module: x -> y -> z -> y -> x -> y -> z. Its trips from z (moves 2-5) and from
+    # y (moves 3-4) go; the trips from x (0-3) and y (1-2) share moves with the one from
+    # z, which ends later, so they stay: dropping them too would leave the module at x.
+    rest = {(0, 0), (1, 0), (0, 1)}
+    x, y, z = (2, 0), (1, 1), (0, 2)
+    assert {g for _, g in complete.lone_steps(rest, x, set())} >= {y}
+    assert {g for _, g in complete.lone_steps(rest, y, set())} >= {x, z}
+    hops = [(x, y), (y, z), (z, y), (y, x), (x, y), (y, z)]
+    kept = drop_round_trips(rest | {x}, hops, (0, 0), frozenset())
+    assert kept == [(x, y), (y, z)]
+
+
 def test_round_trips_that_moves_in_between_need_stay():
     # On a crowded random walk some step-aside-and-back pairs are needed (a module in
     # between pivots on the one that stepped aside, or passes where it would wait):
