@@ -319,12 +319,12 @@ def can_move(occ: set[Coord], c: Coord, obstacles: set[Coord]) -> bool:
 
 # --- walks ---------------------------------------------------------------------------------
 def walk(rest: set[Coord], start: Coord, targets: set[Coord], obstacles: set[Coord],
-         limit: int | None = None) -> Path | None:
+         limit: int | None = None, explored: set[Coord] | None = None) -> Path | None:
     """Shortest walk of a lone module from ``start`` to the nearest cell of ``targets``.
 
     ``rest`` is the structure without the walker; it must be connected and stays
     still. Returns the rotations as ``(cell before, rule)`` or None. ``limit`` caps the
-    number of cells explored.
+    number of cells explored; ``explored``, if given, gets them.
     """
     came: dict[Coord, tuple[Coord, MoveRule] | None] = {start: None}
     todo = deque([start])
@@ -339,6 +339,8 @@ def walk(rest: set[Coord], start: Coord, targets: set[Coord], obstacles: set[Coo
             todo.append(g)
         if limit is not None and len(came) > limit:
             break
+    if explored is not None:
+        explored.update(came)
     if end is None:
         return None
     path: Path = []
@@ -1221,6 +1223,58 @@ class _Peel:
         self.peels.append((k, park))
 
 
+class _Looks:
+    """What lone walkers reach, kept while the cells it depends on stay as they were.
+
+    A walk over the still structure reads the cells within two of each cell it explores
+    (the Table 4-3 rows' substrate and sweep), nothing else: a result stays true until
+    one of those cells changes. Between two relay steps a chain moves a few modules, so
+    most of the reaches and walks a relay step needs are the last step's."""
+
+    def __init__(self) -> None:
+        self._got: dict[tuple, object] = {}
+        self._by_cell: dict[Coord, list[tuple]] = {}
+        self._occ: frozenset[Coord] = frozenset()
+
+    def sync(self, occ: set[Coord]) -> None:
+        """Forget what the cells changed since the last call may have changed."""
+        now = frozenset(occ)
+        for x in self._occ ^ now:
+            for y in _disk(x, 2):
+                for key in self._by_cell.pop(y, ()):
+                    self._got.pop(key, None)
+        self._occ = now
+
+    def reach(self, occ: set[Coord], k: Coord, obstacles: set[Coord]
+              ) -> dict[Coord, tuple[int, Coord | None, MoveRule | None]]:
+        """:func:`bfs` of the module at ``k`` over the rest of ``occ`` (do not modify)."""
+        key = ("reach", k)
+        got = self._got.get(key)
+        if got is None:
+            got = bfs(occ - {k}, k, obstacles)
+            self._put(key, got, got)
+        return got  # type: ignore[return-value]
+
+    def walk_into(self, occ: set[Coord], a: Coord, b: Coord, obstacles: set[Coord]
+                  ) -> int | None:
+        """Moves of the shortest walk (within :data:`RELAY_LIMIT` cells) of the module at
+        ``a`` into the cell of the module at ``b`` once that one has left, or None."""
+        key = ("into", a, b)
+        if key in self._got:
+            return self._got[key]  # type: ignore[return-value]
+        explored: set[Coord] = set()
+        path = walk(occ - {a, b}, a, {b}, obstacles, limit=RELAY_LIMIT, explored=explored)
+        moves = None if path is None else len(path)
+        self._put(key, moves, explored)
+        return moves
+
+    def _put(self, key: tuple, value: object, cells: Iterable[Coord]) -> None:
+        """Keep ``value`` until a cell within two of ``cells`` changes."""
+        self._got[key] = value
+        for c in cells:
+            self._by_cell.setdefault(c, []).append(key)
+
+
 class _Heuristic(_Phase):
     """One forward run of the relay heuristic on ``plan.problem``."""
 
@@ -1232,6 +1286,7 @@ class _Heuristic(_Phase):
         self.depth = goal_depth(self.goal)
         self.enclosed_bonus = enclosed_bonus
         self.seen = {frozenset(self.occ)}
+        self.looks = _Looks()
         self.stats: dict[str, int] = {}
         #: (target, radius) pairs whose local repair failed since the last repair.
         self.repair_failed: set[tuple[Coord, int]] = set()
@@ -1357,7 +1412,8 @@ class _Heuristic(_Phase):
         settled = occ & goal
         wait = self._waiting()
         mobile = [k for k in sorted(occ) if self._mobile(k)]
-        regions = {k: bfs(occ - {k}, k, obstacles) for k in mobile}
+        self.looks.sync(occ)
+        regions = {k: self.looks.reach(occ, k, obstacles) for k in mobile}
         penalty: dict[Coord, float] = {}
         direct: dict[Coord, list[tuple[float, Coord]]] = {}     # module -> (cost, void)
         for k in mobile:
@@ -1396,9 +1452,9 @@ class _Heuristic(_Phase):
             for a in sorted(cands):
                 if not can_move(rest, a, obstacles) or is_cut(rest, a):
                     continue
-                path = walk(rest - {a}, a, {b}, obstacles, limit=RELAY_LIMIT)
-                if path:
-                    into.setdefault(b, []).append((a, len(path)))
+                moves = self.looks.walk_into(occ, a, b, obstacles)
+                if moves:
+                    into.setdefault(b, []).append((a, moves))
         # A chain whose hop cannot be made (e.g. it would repeat a configuration) is
         # banned and the next cheapest chain tried, a few times.
         banned: set[tuple[Coord, Coord]] = set()

@@ -790,3 +790,30 @@ def test_advance_failures_refused_by_seen_configurations_are_not_remembered():
         path, rounds = advance(seen), rounds + 1
     assert rounds > 3 and not failed
     assert advance({frozenset(occ)}) is not None
+
+
+def test_kept_reaches_and_walks_match_fresh_ones_as_the_structure_moves():
+    # The relay steps' reaches and walks are kept until a cell within two of what they
+    # explored changes: along random moves of rough blobs, every kept answer must equal
+    # one computed afresh (a narrower forgetting radius fails this).
+    rng = random.Random(17)
+    checked = 0
+    for cells in _blobs(3, [80]):
+        occ, looks = set(cells), complete._Looks()
+        for _ in range(40):
+            looks.sync(occ)
+            mobile = [k for k in sorted(occ) if k != (0, 0) and complete.can_move(occ, k, set())
+                      and not complete.is_cut(occ, k)]
+            for k in mobile:
+                assert looks.reach(occ, k, set()) == complete.bfs(occ - {k}, k, set())
+                # A module near k (asked again at later steps, as the relays do).
+                b = min((c for c in complete.ring2(k) if c in occ), default=(0, 0))
+                if b != (0, 0):
+                    path = complete.walk(occ - {k, b}, k, {b}, set(), limit=complete.RELAY_LIMIT)
+                    assert looks.walk_into(occ, k, b, set()) == (path and len(path) or None)
+                    checked += 1
+            m = rng.choice(mobile)
+            _, g = rng.choice(list(complete.lone_steps(occ - {m}, m, set())))
+            occ.discard(m)
+            occ.add(g)
+    assert checked > 1000
