@@ -1295,8 +1295,8 @@ class _Heuristic(_Phase):
         self.exchange_failed: set[Coord] = set()
         #: (electron, configuration) pairs whose local advance failed.
         self.advance_failed: set[tuple[Coord, frozenset[Coord]]] = set()
-        #: Window searches that failed, by what decides them (:func:`_window_search`).
-        self.window_failed: set[tuple] = set()
+        #: Window searches made, by what decides them (:func:`_window_search`).
+        self.window_memo: dict[tuple, Path | None] = {}
         self.advance = advance
         self.advance_budget = ADVANCE_CALLS
         #: Planned hole fills left (:meth:`_hole_step`; only when ``holes``).
@@ -1915,7 +1915,7 @@ class _Heuristic(_Phase):
                     near.append((d, v))
         for _, v in sorted(near):
             path = local_exchange(occ, goal, self.fixed, self.obstacles, v, radius, budget,
-                                  self.window_failed)
+                                  self.window_memo)
             if path:
                 self._do_walk(path)
                 self.exchange_failed.clear()
@@ -1967,7 +1967,7 @@ class _Heuristic(_Phase):
                 return False
             self.advance_budget -= 1
             path = local_advance(occ, goal, self.fixed, ob, e, radius, budget, dist, self.seen,
-                                 self.window_failed)
+                                 self.window_memo)
             if path:
                 self._do_walk(path)
                 return True
@@ -1989,7 +1989,7 @@ class _Heuristic(_Phase):
                 if (t, radius) in self.repair_failed:
                     continue
                 path = local_repair(occ, goal, self.fixed, self.obstacles, t, radius, budget,
-                                    self.window_failed)
+                                    self.window_memo)
                 if path is None:
                     self.repair_failed.add((t, radius))
                     continue
@@ -2020,15 +2020,16 @@ def smooth(occ: set[Coord], fixed: Coord, obstacles: set[Coord]) -> list[list[Mo
     steps: list[list[Move]] = []
     radius, budget = SMOOTH_WINDOW
     failed: set[Coord] = set()
-    # Each search's goal (the structure plus the notch) is decided by its window's key.
-    searches_failed: set[tuple] = set()
+    # Each search's goal (the structure plus the notch) is decided by its window's key;
+    # a notch's search is made again after every fill kept, mostly to the same end.
+    searches: dict[tuple, Path | None] = {}
     count = len(notches(occ, obstacles))
     while True:
         for n in notches(occ, obstacles):
             if n in failed:
                 continue
             path = local_repair(occ, occ | {n}, fixed, obstacles, n, radius, budget,
-                                searches_failed)
+                                searches)
             trial = set(occ)
             moves = play(trial, path or [])
             after = len(notches(trial, obstacles)) if moves else count
@@ -2071,7 +2072,7 @@ def smoothed_plan(plan: Plan, *, advance: bool = False, hole_calls: int = HOLE_C
 
 def local_repair(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set[Coord],
                  target: Coord, radius: int, budget: int,
-                 failed: set[tuple] | None = None) -> Path | None:
+                 memo: dict[tuple, Path | None] | None = None) -> Path | None:
     """Best-first search for a short sequence of rotations, inside a window of ``radius``
     around ``target``, that fills a blocked void at ``target`` (or empties a trapped
     electron's cell) while every settled goal cell of the window stays occupied, except
@@ -2079,7 +2080,7 @@ def local_repair(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set
 
     This digs a pocket open and closes it again behind the new module: the vacancy
     moves out to the surface, where relays can fill it. The rest of the structure stays
-    still, so connectivity is checked on the whole of it. ``failed``: see
+    still, so connectivity is checked on the whole of it. ``memo``: see
     :func:`_window_search` (near the window, ``goal`` must be the same at every call
     with it, or decided by the structure there).
     """
@@ -2102,7 +2103,7 @@ def local_repair(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set
     return _window_search(occ, window, outside, target, radius, fixed, obstacles,
                           lambda conf: score(conf) == 0,
                           lambda g, conf: g + REPAIR_WEIGHT * score(conf), budget,
-                          failed, ("repair",))
+                          memo, ("repair",))
 
 
 def _window_moves(window: set[Coord], outside: set[Coord], fixed: Coord,
@@ -2217,7 +2218,7 @@ def _window_cuts(window: set[Coord], outside: set[Coord], components: _Component
 
 def local_exchange(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set[Coord],
                    center: Coord, radius: int, budget: int,
-                   failed: set[tuple] | None = None) -> Path | None:
+                   memo: dict[tuple, Path | None] | None = None) -> Path | None:
     """Best-first search, inside a window of ``radius`` around ``center``, for rotations
     after which the window holds one electron and one void fewer (an electron of the
     window has, directly or through settled modules moving aside and back, filled a void
@@ -2225,7 +2226,7 @@ def local_exchange(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: s
 
     Where the relays find no chain the trouble is often local: the electron is walled in
     and the void sits behind a notch a few cells away; here they trade places.
-    ``failed``: see :func:`_window_search` (the same ``goal`` at every call with it).
+    ``memo``: see :func:`_window_search` (the same ``goal`` at every call with it).
     """
     window = set(_disk(center, radius))
     outside = occ - window
@@ -2243,7 +2244,7 @@ def local_exchange(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: s
     goal_defects = defects(start) - 2
     return _window_search(occ, window, outside, center, radius, fixed, obstacles,
                           lambda conf: defects(conf) <= goal_defects,
-                          lambda g, conf: g + estimate(conf), budget, failed, ("exchange",))
+                          lambda g, conf: g + estimate(conf), budget, memo, ("exchange",))
 
 
 def surface_field(occ: set[Coord], voids: set[Coord],
@@ -2279,14 +2280,15 @@ def surface_distance(field: dict[Coord, int]) -> Callable[[Coord], int]:
 
 def local_advance(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set[Coord],
                   centre: Coord, radius: int, budget: int, dist: Callable[[Coord], int],
-                  seen: set[frozenset[Coord]], failed: set[tuple] | None = None) -> Path | None:
+                  seen: set[frozenset[Coord]], memo: dict[tuple, Path | None] | None = None
+                  ) -> Path | None:
     """Best-first search, inside a window of ``radius`` around the electron at
     ``centre``, for rotations that bring the window's electrons :data:`ADVANCE_GAIN`
     nearer the voids in total (``dist``: :func:`surface_distance`, capped at
     :data:`ADVANCE_CAP` each) without emptying a goal cell or repeating a configuration
     of ``seen``. Settled modules may step aside and back: an electron stopped by a notch
-    gets past it. ``failed``: see :func:`_window_search` (the same ``goal`` at every call
-    with it)."""
+    gets past it. ``memo``: see :func:`_window_search` (the same ``goal`` at every call
+    with it); only failures are kept, since ``seen`` grows."""
     cells = _disk(centre, radius)
     window = set(cells)
     outside = occ - window
@@ -2313,42 +2315,44 @@ def local_advance(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: se
 
     far = tuple(min(dist(c), ADVANCE_CAP) for c in cells)
     return _window_search(occ, window, outside, centre, radius, fixed, obstacles, done,
-                          priority, budget, failed, ("advance", far), lambda: not refused)
+                          priority, budget, memo, ("advance", far), lambda: not refused,
+                          keep_found=False)
 
 
 def _window_search(occ: set[Coord], window: set[Coord], outside: set[Coord], centre: Coord,
                    radius: int, fixed: Coord, obstacles: set[Coord],
                    is_goal: Callable[[frozenset[Coord]], bool],
                    priority: Callable[[int, frozenset[Coord]], int], budget: int,
-                   failed: set[tuple] | None, tag: tuple,
-                   exact: Callable[[], bool] = lambda: True) -> Path | None:
+                   memo: dict[tuple, Path | None] | None, tag: tuple,
+                   exact: Callable[[], bool] = lambda: True, keep_found: bool = True
+                   ) -> Path | None:
     """Best-first search (:func:`planner_svc.search.best_first`) for rotations inside
     ``window``, the disk of ``radius`` around ``centre``, with ``outside`` still.
 
     Such a search is decided by the cells within two of the window (rotations look no
     further), how the still part's components meet the window (cut tests), the budget,
     and what the caller's ``tag`` adds (its goal near the window being fixed, or decided by
-    the cells there). Failures are kept in
-    ``failed`` under that key and not searched again, unless ``exact()`` says the search
-    looked beyond it: runs tried the same windows again after every success elsewhere,
+    the cells there). Outcomes are kept in ``memo`` under that key and not searched
+    again: failures unless ``exact()`` says the search looked beyond the key, paths if
+    ``keep_found``. Runs tried the same windows again after every success elsewhere,
     and on scrambled blobs of 1000 modules failed searches, most of them repeats, took
     three quarters of the time."""
     components = _still_components(window, outside)
     key = None
-    if failed is not None:
+    if memo is not None:
         near = frozenset(c for c in _disk(centre, radius + 2) if c in occ)
         meets = frozenset(Counter(frozenset(port) for port in components[1] if port).items())
         key = (centre, radius, budget, near, meets, *tag)
-        if key in failed:
-            return None
+        if key in memo:
+            kept = memo[key]
+            return None if kept is None else list(kept)
     found, _ = best_first(frozenset(occ & window),
                           _window_moves(window, outside, fixed, obstacles, components),
                           is_goal, priority, budget)
-    if found is None:
-        if key is not None and exact():
-            failed.add(key)
-        return None
-    return [(m, rule) for _, m, rule in found]
+    path = None if found is None else [(m, rule) for _, m, rule in found]
+    if key is not None and (exact() if path is None else keep_found):
+        memo[key] = None if path is None else list(path)
+    return path
 
 
 def _finish_small(plan: Plan, occ: set[Coord], exact_limit: int) -> None:
