@@ -1862,9 +1862,19 @@ class _Heuristic(_Phase):
         walled-in electrons in a bay's flat ceiling). Bounded by :data:`HOLE_NEAR_PEELS`."""
         goal = self.goal
         sim, left, hole = pl.sim, pl.left, pl.hole
+        # Distances to the cells still to peel, kept until one is peeled (``left`` only
+        # shrinks): each round asks again for most of the structure and its regions.
+        gaps_for, known = len(left), {}
 
         def gap(c: Coord) -> int:
-            return min(hex_distance(c, a) for a in left)
+            nonlocal gaps_for
+            if gaps_for != len(left):
+                gaps_for = len(left)
+                known.clear()
+            d = known.get(c)
+            if d is None:
+                d = known[c] = min(hex_distance(c, a) for a in left)
+            return d
 
         for _ in range(HOLE_NEAR_PEELS):
             if not left:
