@@ -2,7 +2,7 @@
 
 It finishes on every instance of the benchmark's four families (convex, sparse, Eden
 and scrambled, up to 1000 modules) and on small fleets (the exact search takes over).
-Large rough blobs (Eden, 1000 modules) take minutes and long plans, through the last
+Large rough blobs (Eden, 1000 modules) take a minute or so and long plans, through the last
 resort below, and not all finish (of seeds 0-4, 0, 2 and 3 do): on seeds 1 and 4 the
 relays wall voids into lakes, and opening them leaves 15-41 voids. Where it does not
 finish it says "stuck" and never claims unreachability.
@@ -109,7 +109,7 @@ stop with more than :data:`FEW_VOIDS` voids left have walled voids in: the relay
 where phase 1 stopped and on the reverse problem are skipped, the smoothed shapes go
 first and plain digging runs only when they fail (Eden blobs of 1000 modules: seeds 0
 and 2 solved that way, seed 3 by the plain digging after, 6.3-10.6x the bound once
-shortened, 1.5-4 minutes). If that fails too, small fleets
+shortened, 52-90 s). If that fails too, small fleets
 (``exact_limit`` modules or fewer) fall back to
 :mod:`planner_svc.search` from the current configuration, which also proves
 unreachability (moves are reversible, so unreachable from there is unreachable from
