@@ -2247,9 +2247,10 @@ def local_exchange(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: s
         return len(want - conf) + len(conf - goal)
 
     def estimate(conf: frozenset[Coord]) -> int:
-        extra = conf - goal
-        gap = sum(min(hex_distance(v, e) for e in extra) for v in want - conf) if extra else 0
-        return REPAIR_WEIGHT * defects(conf) + gap
+        # defects(conf), weighted, plus how far the window's electrons are from its voids.
+        extra, holes = conf - goal, want - conf
+        gap = sum(min(hex_distance(v, e) for e in extra) for v in holes) if extra else 0
+        return REPAIR_WEIGHT * (len(holes) + len(extra)) + gap
 
     goal_defects = defects(start) - 2
     return _window_search(occ, window, outside, center, radius, fixed, obstacles,
