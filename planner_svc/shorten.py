@@ -9,10 +9,10 @@ it had. Modules are interchangeable, so a serial plan is a path through configur
 * **round trips**: a module leaves a cell and its later moves bring it back there (a
   step aside and back, or a longer detour); if every other move in between is still
   legal with that module waiting in its cell (its Table 4-3 row and the connectivity
-  of the rest), the trip goes. Trips are tried from the last to start to the first, so
-  the trips nested in one are decided before it: a step aside inside a detour goes
-  first and frees the detour in the same pass (forwards, each pass freed one level:
-  29 passes instead of 3 on an Eden blob of 1000 modules).
+  of the rest), the trip goes. Trips are tried latest start first, so the trips nested
+  in one are decided before it: a step aside inside a detour goes first and frees the
+  detour in the same pass (tried earliest first, each pass freed one level: 29 passes
+  instead of 3 on an Eden blob of 1000 modules).
 
 The result is rebuilt move by move on the configuration of its time (the joints a move
 releases depend on who is next to it then) and checked as it is built; should any move
