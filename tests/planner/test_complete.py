@@ -726,7 +726,7 @@ def test_window_successors_match_a_search_from_scratch():
     assert checked > 100
 
 
-def test_failed_window_searches_are_remembered_by_what_decides_them():
+def test_window_searches_are_remembered_by_what_decides_them():
     # A hexagonal ring of radius 8: its corner (8, 0) can rotate outwards only while the
     # ring is closed far away (else it is a cut vertex). The failure on the broken ring
     # is remembered and answers for a ring broken elsewhere (same window, same cuts),
@@ -735,38 +735,38 @@ def test_failed_window_searches_are_remembered_by_what_decides_them():
     corner = (8, 0)
     (_, out), *_ = complete.lone_steps(ring - {corner}, corner, set())
     goal = ring - {corner} | {out}
-    failed: dict = {}
+    kept: dict = {}
 
     def exchange(occ, memo):
         return complete.local_exchange(occ, goal & occ | {out}, (0, 0), set(), corner, 2, 300, memo)
 
-    assert exchange(ring - {(-8, 0)}, failed) is None and len(failed) == 1
-    assert exchange(ring - {(-8, 3)}, failed) is None and len(failed) == 1
+    assert exchange(ring - {(-8, 0)}, kept) is None and len(kept) == 1
+    assert exchange(ring - {(-8, 3)}, kept) is None and len(kept) == 1
     assert exchange(ring - {(-8, 3)}, None) is None
     found = [(corner, next(r for r, d in complete.lone_steps(ring - {corner}, corner, set())
                            if d == out))]
-    assert exchange(ring, failed) == found and len(failed) == 2
+    assert exchange(ring, kept) == found and len(kept) == 2
     # A path found is kept too (smoothing asks again for the same notches).
-    assert exchange(ring, failed) == found and len(failed) == 2
+    assert exchange(ring, kept) == found and len(kept) == 2
     # On random blobs, a remembered failure answers only where a fresh search fails too.
     rng = random.Random(21)
     answered = 0
     for cells in _blobs(4, [200]):
-        failed = {}
+        kept = {}
         for _ in range(12):
             target = rng.choice(sorted(cells))
             if complete.local_repair(cells, cells - {target}, (0, 0), set(), target, 3, 40,
-                                     failed) is not None:
+                                     kept) is not None:
                 continue
             # One rotation of a module far from the window.
             c, d = next((c, d) for c in sorted(cells) if hex_distance(c, target) > 6
                         and not complete.is_cut(cells, c)
                         for _, d in complete.lone_steps(cells - {c}, c, set()))
             moved = cells - {c} | {d}
-            before = len(failed)
-            memo = complete.local_repair(moved, cells - {target}, (0, 0), set(), target, 3, 40, failed)
+            before = len(kept)
+            memo = complete.local_repair(moved, cells - {target}, (0, 0), set(), target, 3, 40, kept)
             fresh = complete.local_repair(moved, cells - {target}, (0, 0), set(), target, 3, 40)
-            if len(failed) == before:
+            if len(kept) == before:
                 answered += 1
                 assert memo is None and fresh is None
     assert answered > 5
@@ -780,10 +780,10 @@ def test_advance_failures_refused_by_seen_configurations_are_not_remembered():
     occ, goal = {xy(c) for c in p.initial}, {xy(c) for c in p.goal}
     dist = complete.surface_distance(complete.surface_field(occ, goal - occ))
     e = sorted(occ - goal)[0]
-    seen, failed = {frozenset(occ)}, {}
+    seen, kept = {frozenset(occ)}, {}
 
     def advance(seen):
-        return complete.local_advance(occ, goal, xy(p.fixed), set(), e, 2, 40, dist, seen, failed)
+        return complete.local_advance(occ, goal, xy(p.fixed), set(), e, 2, 40, dist, seen, kept)
 
     path, rounds = advance(seen), 0
     while path is not None:
@@ -791,7 +791,7 @@ def test_advance_failures_refused_by_seen_configurations_are_not_remembered():
         complete.play(after, path)
         seen.add(frozenset(after))
         path, rounds = advance(seen), rounds + 1
-    assert rounds > 3 and not failed
+    assert rounds > 3 and not kept
     assert advance({frozenset(occ)}) is not None
 
 
