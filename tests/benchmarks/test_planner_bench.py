@@ -14,7 +14,7 @@ last the goal is the start scrambled:
   also between smoothed shapes (notches of start and goal filled first), solves the
   three of 100 modules (2.6-4.7x the bound once shortened, mean 3.4x, 7-16 s) and,
   with advances and a nearest-first peel for craters that end in a flat face, the one of
-  1000 (8.2x the bound, under 2 minutes; of seeds 0-4, 0, 2 and 3 are solved).
+  1000 (8.2x the bound, about a minute; of seeds 0-4, 0, 2 and 3 are solved).
 * **sparse**: random trees (:func:`random_sparse_problem`) in which no module has
   more than three occupied neighbours and no empty cell more than two, so walkers fit
   between branches. Note: these trees spread out (radius ~ n/4), so the bound and the
@@ -29,7 +29,7 @@ last the goal is the start scrambled:
   family measures completeness. The random walkers leave thin tendrils and sometimes
   seal a pocket (an electron walled in), which must be reopened. Solved at 1000 modules since
   electrons advance along the surface towards far voids: seeds 0-3 at 2.15-2.53x the bound
-  once shortened in 4-15 s, except seed 1 (a sealed cave dug open: 8.75x, 35 s).
+  once shortened in 3-7 s, except seed 1 (a sealed cave dug open: 8.75x, 20 s).
 
 Each instance also gets a *walk reference*
 (:func:`planner_svc.bounds.walk_reference`): the same assignment with each module's cost
