@@ -104,7 +104,12 @@ of the start and of the goal are filled first by local repairs (:func:`smooth`; 
 goal's smoothing is played backwards at the end), so fewer notches stop the walkers, the
 relays go further and less is dug; the shorter plan is kept (Eden blobs of 100 modules:
 3.8x the bound on two of three seeds; on fleets over :data:`SMOOTH_LIMIT` modules, with
-advances and up to :data:`HOLE_CALLS_LARGE` digs). On those larger fleets, relays that
+advances and up to :data:`HOLE_CALLS_LARGE` digs). On those fleets the relays also run
+again, digging where they stop, with the voids next to a *pinned* electron waiting while
+it is there (:meth:`_Heuristic._pinned`: with the goal complete around it, it could not
+rotate; relays that stopped had often walled such electrons into cracks of the goal:
+scrambled blobs of 1000 modules, seed 1: 680 moves instead of 1706), and the shortest of
+the three plans is kept. On those larger fleets, relays that
 stop with more than :data:`FEW_VOIDS` voids left have walled voids in: the relays from
 where phase 1 stopped and on the reverse problem are skipped, the smoothed shapes go
 first and plain digging runs only when they fail (Eden blobs of 1000 modules: seeds 0
@@ -1086,33 +1091,53 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
         # long plans, but they reach the goal), by the relays from where they stopped
         # (no other run failed here), and through smoothed shapes: fewer notches stop the
         # walkers, so relays go further and less is dug (Eden blobs of 100 modules: 3.8x
-        # the bound instead of 9x on two of three seeds). Both are tried and the shorter
+        # the bound instead of 9x on two of three seeds). Both are tried and the shortest
         # plan kept: neither is always shorter (scrambled blobs of 1000 modules, seeds 1,
         # 6 and 9: 1706, 2056 and 2968 moves digging from where the relays stopped,
-        # 1954, 942 and 3461 through smoothed shapes). Where voids are walled in (large
-        # fleets only), smoothed shapes go first and plain digging runs only when that
-        # fails: on Eden blobs of 1000 modules (seeds 0-4) it finished none, and took 45 s.
+        # 1954, 942 and 3461 through smoothed shapes). On large fleets the relays also
+        # run again with pinned electrons first (:meth:`_Heuristic._pinned`), digging
+        # where they stop: stuck relays have often walled electrons into cracks of the
+        # goal (seeds 1, 9 and 10: 680, 2211 and 496 moves instead of 1706, 2960 and 562;
+        # seeds 6, 11 and 13 finish no better that way, one relay run later). Where voids
+        # are walled in (large fleets only), smoothed shapes go first and plain digging
+        # runs only when that fails: on Eden blobs of 1000 modules (seeds 0-4) it
+        # finished none, and took 45 s (pins changed nothing there on seeds 0 and 3).
         assert relays is not None
-        smoothed, dug = Plan(plan.planner, p), Plan(plan.planner, p)
-        calls = HOLE_CALLS_LARGE if len(goal) > SMOOTH_LIMIT else HOLE_CALLS
+        large = len(goal) > SMOOTH_LIMIT
+        calls = HOLE_CALLS_LARGE if large else HOLE_CALLS
+        tries: list[tuple[Plan, str]] = []
+        smoothed = Plan(plan.planner, p)
         if walled:
-            through = smoothed_plan(smoothed, advance=advance, hole_calls=calls)
-            if not through:
+            if smoothed_plan(smoothed, advance=advance, hole_calls=calls):
+                tries.append((smoothed, SMOOTHED_NOTE))
+            else:
+                dug = Plan(plan.planner, p)
                 relays.dig_on(dug)
+                tries.append((dug, DUG_NOTE))
         else:
+            dug = Plan(plan.planner, p)
             relays.dig_on(dug, calls)
-            through = smoothed_plan(smoothed, advance=advance, hole_calls=calls) and (
-                not dug.ok or _shortened_difference(smoothed, dug) < 0)
-        if through:
-            plan.steps, plan.ok = smoothed.steps, True
-            plan.notes += smoothed.notes
-            plan.notes.append("relays stuck; start and goal smoothed (notches filled), "
-                              "holes dug open and refilled")
-            return False
-        if dug.ok:
-            plan.steps, plan.ok = dug.steps, True
-            plan.notes += dug.notes
-            plan.notes.append("relays stuck; holes dug open and refilled")
+            tries.append((dug, DUG_NOTE))
+            if large:
+                pinned = _Heuristic(Plan(plan.planner, p), advance=advance, pins=True)
+                pinned.run()
+                if pinned.plan.ok:
+                    tries.append((pinned.plan, PINNED_NOTE))
+                else:
+                    dug = Plan(plan.planner, p)
+                    pinned.dig_on(dug, calls)
+                    tries.append((dug, f"{PINNED_NOTE}, holes dug open and refilled"))
+            smoothed_plan(smoothed, advance=advance, hole_calls=calls)
+            tries.append((smoothed, SMOOTHED_NOTE))
+        done = [(t, note) for t, note in tries if t.ok]
+        if len(done) > 1:
+            for t, _ in done:           # compared as they will be played
+                _shorten(t)
+        if done:
+            best, note = min(done, key=lambda tn: tn[0].moves)     # ties: the first
+            plan.steps, plan.ok = best.steps, True
+            plan.notes += best.notes
+            plan.notes.append(note)
             return False
     plan.steps, plan.ok, plan.reason = forward.steps, forward.ok, forward.reason
     plan.notes += forward.notes
@@ -1121,6 +1146,12 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
         _finish_small(plan, occ, exact_limit)
         return False
     return forward is front or (forward is first and walked)
+
+
+#: How the last resort's plans say where they come from.
+DUG_NOTE = "relays stuck; holes dug open and refilled"
+SMOOTHED_NOTE = "relays stuck; start and goal smoothed (notches filled), holes dug open and refilled"
+PINNED_NOTE = "relays stuck; run again with pinned electrons first"
 
 
 def reverse_steps(plan: Plan, problem: Problem) -> list[list[Move]]:
@@ -1280,7 +1311,8 @@ class _Heuristic(_Phase):
 
     def __init__(self, plan: Plan, enclosed_bonus: float = ENCLOSED_BONUS,
                  start: set[Coord] | None = None, holes: bool = False,
-                 advance: bool = False, hole_calls: int = HOLE_CALLS) -> None:
+                 advance: bool = False, hole_calls: int = HOLE_CALLS,
+                 pins: bool = False) -> None:
         super().__init__(plan, {xy(c) for c in plan.problem.initial} if start is None
                          else set(start))
         self.depth = goal_depth(self.goal)
@@ -1314,6 +1346,10 @@ class _Heuristic(_Phase):
         self.wedge_fill: dict[Coord, int] = {}
         #: The fewest voids so far (fewer is progress: the budgets are renewed).
         self.fewest = len(self.goal - self.occ)
+        #: Whether the voids next to a pinned electron wait (:meth:`_waiting`), and
+        #: which cells off the goal pin (:meth:`_pinned`).
+        self.pins = pins
+        self.pinned_at: dict[Coord, bool] = {}
 
     def run(self, until: Callable[[], bool] | None = None) -> None:
         """Relay until the goal is reached (or ``until()`` holds) or neither a relay
@@ -1382,16 +1418,31 @@ class _Heuristic(_Phase):
         return sum(1 for w in ring2(v) if w in self.goal and w not in self.occ
                    and not enterable(after, w, ob) and enterable(settled, w, ob))
 
+    def _pinned(self, e: Coord) -> bool:
+        """Whether an electron at ``e`` (a cell off the goal) could not rotate once the
+        goal were complete around it: it sits in a crack of the goal shape, and each
+        void around it filled before it leaves may wall it in."""
+        pinned = self.pinned_at.get(e)
+        if pinned is None:
+            pinned = self.pinned_at[e] = not can_move(self.goal | {e}, e, self.obstacles)
+        return pinned
+
     def _waiting(self) -> set[Coord]:
         """Voids the relays fill only when nothing else is left (they pay as much as
         sealing a void): an opened lake's crater while the lake has voids (filled first,
-        it seals the lake again), and the cells of an emptied wedge above its lowest void
-        (refilled apex first, the peel backwards, else the apex is sealed)."""
-        occ, fill = self.occ, self.wedge_fill
+        it seals the lake again), the cells of an emptied wedge above its lowest void
+        (refilled apex first, the peel backwards, else the apex is sealed) and, with
+        ``pins``, the voids next to a pinned electron (:meth:`_pinned`) while it is
+        there."""
+        occ, fill, goal = self.occ, self.wedge_fill, self.goal
         wait = set(self.mouth) - occ if self.lake - occ else set()
         low = min((lv for c, lv in fill.items() if c not in occ), default=None)
         if low is not None:
             wait |= {c for c, lv in fill.items() if lv > low and c not in occ}
+        if self.pins:
+            for e in occ - goal:
+                if self._pinned(e):
+                    wait.update(n for n in neighbours_xy(e) if n in goal and n not in occ)
         return wait
 
     def _relay_step(self) -> bool:

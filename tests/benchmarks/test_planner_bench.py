@@ -28,8 +28,9 @@ last the goal is the start scrambled:
   rotations (:func:`random_scrambled_problem`): reachable by construction, so this
   family measures completeness. The random walkers leave thin tendrils and sometimes
   seal a pocket (an electron walled in), which must be reopened. Solved at 1000 modules since
-  electrons advance along the surface towards far voids: seeds 0-3 at 2.15-2.53x the bound
-  once shortened in 3-7 s, except seed 1 (a sealed cave dug open: 8.75x, 20 s).
+  electrons advance along the surface towards far voids: seeds 0, 2 and 3 at 2.15-2.53x
+  the bound once shortened in 3-5 s; seed 1 by the last resort, relays with pinned
+  electrons first and a dig (3.49x, 20 s).
 
 Each instance also gets a *walk reference*
 (:func:`planner_svc.bounds.walk_reference`): the same assignment with each module's cost

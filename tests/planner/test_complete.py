@@ -691,6 +691,48 @@ def test_relays_that_wall_voids_in_go_straight_to_digging(monkeypatch, few_voids
     assert ("reverse" in runs) is not walled and ("phase 1" in runs) is not walled
 
 
+def test_pinned_electrons_make_the_voids_next_to_them_wait():
+    # Scrambled 8 seed 12: the electron at (0, -1) sits in a crack of the goal (it could
+    # not rotate with the goal complete around it); the others could. With pins, the
+    # void next to it waits, so the first relay fills another void; without, the relay
+    # fills that one first and walls it in.
+    p = random_scrambled_problem(8, 12)
+    plain = complete._Heuristic(Plan("complete", p))
+    pinned = complete._Heuristic(Plan("complete", p), pins=True)
+    goal, occ = pinned.goal, set(pinned.occ)
+    assert {e for e in occ - goal if pinned._pinned(e)} == {(0, -1)}
+    assert not complete.can_move(goal | {(0, -1)}, (0, -1), set())
+    wall = {n for n in neighbours_xy((0, -1)) if n in goal and n not in occ}
+    assert wall == {(-1, 0)}
+    assert pinned._waiting() == wall and not plain._waiting()
+    assert plain._relay_step() and pinned._relay_step()
+    assert wall <= plain.occ and not wall & pinned.occ
+    for h in (plain, pinned):
+        h.run()
+        assert h.plan.ok
+        validate(h.plan)
+
+
+def test_the_last_resort_also_digs_from_relays_run_with_pinned_electrons_first(monkeypatch):
+    # Eden 30 seed 76, counted as a large fleet: every relay run stops; run again with
+    # pinned electrons first, the relays finish, in fewer moves than any plan without.
+    monkeypatch.setattr(complete, "SMOOTH_LIMIT", 10)
+    p = random_problem(30, 76)
+    plans = []
+    for pins in (True, False):
+        if not pins:
+            monkeypatch.setattr(complete._Heuristic, "_pinned", lambda self, e: False)
+        plan = Plan("complete", p)
+        complete.plan_complete(plan)
+        assert plan.ok
+        validate(plan)
+        plans.append(plan)
+    with_pins, without = plans
+    assert with_pins.notes[-1] == complete.PINNED_NOTE
+    assert complete.PINNED_NOTE not in without.notes
+    assert with_pins.moves < without.moves
+
+
 def test_window_successors_match_a_search_from_scratch():
     # The window searches carry each configuration's rotations over from its parent and
     # look up again only the modules near the two cells that changed: breadth-first
