@@ -5,8 +5,11 @@ import pytest
 from bus.cli import main
 from bus.scenario import load
 
-from planner_svc import planners
-from planner_svc.plan import JOULES_PER_MOVE, Problem, validate
+from planner_svc import planners, search
+from planner_svc.planners import as_problem
+from planner_svc.bounds import random_problem
+from planner_svc.plan import JOULES_PER_MOVE, Plan, Problem, validate
+from planner_svc.rules import _legal_xy, xy
 
 
 def run(planner, scenario):
@@ -56,6 +59,31 @@ def test_exact_is_optimal_on_thesis6():
     assert plan.ok and plan.moves == 8
     rev = run("exact", "thesis-6-reverse")
     assert rev.ok and rev.moves <= run("complete", "thesis-6-reverse").moves
+
+
+def test_exact_estimates_the_assignment_bound_and_stays_fewest_moves():
+    # The estimate is the benchmark's lower bound taken from each configuration: thesis-12
+    # (18 moves) within 5000 configurations (nearest goal cells needed 168 171), and on
+    # small random blobs A* with it finds as few moves as a plain breadth-first search.
+    plan = planners.get("exact").plan(load("thesis-12"))
+    assert plan.ok and plan.moves == 18
+    limited = Plan("exact", as_problem(load("thesis-12")))
+    search.plan_exact(limited, max_configurations=5000)
+    assert limited.ok and limited.moves == 18
+    for seed in range(6):
+        p = random_problem(5, seed)
+        start, goal = frozenset(xy(c) for c in p.initial), frozenset(xy(c) for c in p.goal)
+        region = search.region_around(set(start | goal), search.DEFAULT_MARGIN)
+        path, _ = search.search_moves(start, goal, xy(p.fixed), set(), region, 10 ** 5)
+
+        def successors(conf):
+            for _, m, rule in _legal_xy(set(conf), xy(p.fixed), set()):
+                dest = (m[0] + search._GOAL_OFFSET[rule][0], m[1] + search._GOAL_OFFSET[rule][1])
+                if dest in region:
+                    yield m, rule, conf - {m} | {dest}
+        plain, _ = search.best_first(start, successors, lambda c: c == goal,
+                                     lambda g, c: g, 10 ** 5)
+        assert path is not None and plain is not None and len(path) == len(plain)
 
 
 def test_exact_proves_unreachable():
