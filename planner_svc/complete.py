@@ -104,12 +104,13 @@ of the start and of the goal are filled first by local repairs (:func:`smooth`; 
 goal's smoothing is played backwards at the end), so fewer notches stop the walkers, the
 relays go further and less is dug; the shorter plan is kept (Eden blobs of 100 modules:
 3.8x the bound on two of three seeds; on fleets over :data:`SMOOTH_LIMIT` modules, with
-advances and up to :data:`HOLE_CALLS_LARGE` digs). On those fleets the relays also run
-again, digging where they stop, with the voids next to a *pinned* electron waiting while
-it is there (:meth:`_Heuristic._pinned`: with the goal complete around it, it could not
-rotate; relays that stopped had often walled such electrons into cracks of the goal:
-scrambled blobs of 1000 modules, seed 1: 680 moves instead of 1706), and the shortest of
-the three plans is kept. On those larger fleets, relays that
+advances and up to :data:`HOLE_CALLS_LARGE` digs). On those fleets, unless voids are
+walled in (below), the relays also run again, digging where they stop, with the voids
+next to a *pinned* electron waiting while it is there (:meth:`_Heuristic._pinned`: with
+the goal complete around it, it could not rotate; relays that stopped had often walled
+such electrons into cracks of the goal: scrambled blobs of 1000 modules, seed 1: 680
+moves instead of 1706), and the shortest of the three plans is kept. On those larger
+fleets, relays that
 stop with more than :data:`FEW_VOIDS` voids left have walled voids in: the relays from
 where phase 1 stopped and on the reverse problem are skipped, the smoothed shapes go
 first and plain digging runs only when they fail (Eden blobs of 1000 modules: seeds 0
@@ -1098,7 +1099,7 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
         # run again with pinned electrons first (:meth:`_Heuristic._pinned`), digging
         # where they stop: stuck relays have often walled electrons into cracks of the
         # goal (seeds 1, 9 and 10: 680, 2211 and 496 moves instead of 1706, 2960 and 562;
-        # seeds 6, 11 and 13 finish no better that way, one relay run later). Where voids
+        # seeds 6, 11, 13, 15 and 18 keep their plans, one relay run later). Where voids
         # are walled in (large fleets only), smoothed shapes go first and plain digging
         # runs only when that fails: on Eden blobs of 1000 modules (seeds 0-4) it
         # finished none, and took 45 s (pins changed nothing there on seeds 0 and 3).
