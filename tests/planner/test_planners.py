@@ -6,9 +6,9 @@ from bus.cli import main
 from bus.scenario import load
 
 from planner_svc import planners, search
-from planner_svc.planners import as_problem
 from planner_svc.bounds import random_problem
 from planner_svc.plan import JOULES_PER_MOVE, Plan, Problem, validate
+from planner_svc.planners import as_problem
 from planner_svc.rules import _legal_xy, xy
 
 
