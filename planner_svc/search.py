@@ -53,15 +53,17 @@ def best_first(start: frozenset[Coord],
                successors: Callable[[frozenset[Coord]],
                                     Iterable[tuple[Coord, object, frozenset[Coord]]]],
                is_goal: Callable[[frozenset[Coord]], bool],
-               priority: Callable[[int, frozenset[Coord]], float], budget: int
+               priority: Callable[[int, frozenset[Coord]], float], budget: int,
+               cap: float | None = None
                ) -> tuple[list[tuple[frozenset[Coord], Coord, object]] | None, int]:
     """Best-first search over configurations, one rotation per edge.
 
     ``successors(conf)`` yields ``(mobile, rule, next configuration)``; a configuration
     reached with ``g`` moves is queued by ``priority(g, conf)`` (A* when that is ``g`` plus
     an admissible estimate). Returns the path as ``(configuration before, mobile, rule)``
-    from ``start`` to the first goal taken off the queue, or None (no goal reachable, or
-    more than ``budget`` expansions), and the number of expansions.
+    from ``start`` to the first goal taken off the queue, or None (no goal reachable, more
+    than ``budget`` expansions, or a priority above ``cap`` taken off the queue: with a
+    consistent estimate, no plan of ``cap`` moves or fewer), and the number of expansions.
     """
     tie = itertools.count()
     parent: dict[frozenset[Coord], tuple[frozenset[Coord], Coord, object] | None] = {start: None}
@@ -69,7 +71,9 @@ def best_first(start: frozenset[Coord],
     heap = [(priority(0, start), next(tie), start)]
     expanded = 0
     while heap:
-        _, _, conf = heapq.heappop(heap)
+        f, _, conf = heapq.heappop(heap)
+        if cap is not None and f > cap:
+            return None, expanded
         if is_goal(conf):
             path = []
             while (link := parent[conf]) is not None:
@@ -89,10 +93,12 @@ def best_first(start: frozenset[Coord],
 
 
 def search_moves(start: frozenset[Coord], goal: frozenset[Coord], fixed: Coord,
-                 obstacles: set[Coord], region: set[Coord], max_configurations: int
+                 obstacles: set[Coord], region: set[Coord], max_configurations: int,
+                 cap: int | None = None
                  ) -> tuple[list[tuple[frozenset[Coord], Coord, object]] | None, int]:
     """A* from ``start`` to ``goal``, never moving a module out of ``region``. Returns (list of (configuration before, mobile, rule)),
-    or None if the goal is unreachable (or the limit hit), and the number of expansions."""
+    or None if the goal is unreachable (or the limit hit, or it takes more than ``cap``
+    moves), and the number of expansions."""
     goal_list = sorted(goal)
 
     def h(conf: frozenset[Coord]) -> int:
@@ -111,7 +117,7 @@ def search_moves(start: frozenset[Coord], goal: frozenset[Coord], fixed: Coord,
                 yield m, rule, frozenset(occ - {m} | {dest})
 
     return best_first(start, successors, lambda conf: conf == goal, lambda g, conf: g + h(conf),
-                      max_configurations)
+                      max_configurations, cap)
 
 
 def search_from(plan: Plan, occ: Iterable[Cell | Coord], margin: int = DEFAULT_MARGIN,
@@ -137,6 +143,24 @@ def search_from(plan: Plan, occ: Iterable[Cell | Coord], margin: int = DEFAULT_M
     return expanded
 
 
+def fewer_moves(plan: Plan, margin: int = DEFAULT_MARGIN,
+                max_configurations: int = DEFAULT_MAX_CONFIGURATIONS) -> bool | None:
+    """Replace the steps of the finished serial ``plan`` by a plan with the fewest moves if
+    that is fewer (True); False if none is fewer within ``margin``, None if the search
+    gave up first. Only configurations that could lead to a shorter plan are expanded,
+    so a plan close to the fewest costs little to confirm."""
+    p = plan.problem
+    start = frozenset(xy(c) for c in p.initial)
+    goal = frozenset(xy(c) for c in p.goal)
+    region = region_around(set(start | goal), margin)
+    path, expanded = search_moves(start, goal, xy(p.fixed), {xy(c) for c in p.obstacles},
+                                  region, max_configurations, cap=plan.moves - 1)
+    if path is None:
+        return None if expanded > max_configurations else False
+    plan.steps = [[to_move(conf, m, rule)] for conf, m, rule in path]
+    return True
+
+
 def plan_exact(plan: Plan, margin: int = DEFAULT_MARGIN,
                max_configurations: int = DEFAULT_MAX_CONFIGURATIONS) -> None:
     """Fill ``plan`` with a fewest-moves serial plan, or say why there is none."""
@@ -159,4 +183,4 @@ def exact_reachable(initial, goal, fixed, obstacles=(), margin: int = DEFAULT_MA
     return path is not None
 
 
-__all__ = ["plan_exact", "exact_reachable", "region_around", "Cell"]
+__all__ = ["plan_exact", "exact_reachable", "fewer_moves", "region_around", "Cell"]
