@@ -1163,9 +1163,8 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
             smoothed_plan(smoothed, advance=advance, hole_calls=calls)
             tries.append((smoothed, SMOOTHED_NOTE))
         done = [(t, note) for t, note in tries if t.ok]
-        if len(done) > 1:
-            for t, _ in done:           # compared as they will be played
-                _shorten(t)
+        for t, _ in done:       # compared as they will be played; shortened here, the
+            _shorten(t)         # plan's notes say so before saying where it comes from
         if done:
             best, note = min(done, key=lambda tn: tn[0].moves)     # ties: the first
             plan.steps, plan.ok = best.steps, True

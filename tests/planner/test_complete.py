@@ -689,6 +689,9 @@ def test_relays_that_wall_voids_in_go_straight_to_digging(monkeypatch, few_voids
     assert plan.ok
     validate(plan)
     assert ("reverse" in runs) is not walled and ("phase 1" in runs) is not walled
+    if walled:      # shortened before it is chosen, the plan says last where it comes from
+        assert plan.notes[-1] in (complete.DUG_NOTE, complete.SMOOTHED_NOTE)
+        assert plan.notes[-2].startswith("shortened by")
 
 
 def test_pinned_electrons_make_the_voids_next_to_them_wait():
