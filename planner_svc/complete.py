@@ -1024,7 +1024,8 @@ def plan_complete(plan: Plan, exact_limit: int = EXACT_LIMIT) -> None:
     """
     if not _plan_phases(plan, exact_limit):
         _shorten(plan)
-    if plan.ok and len(plan.problem.goal) <= FEWEST_LIMIT and all(len(s) == 1 for s in plan.steps):
+    small = len(plan.problem.goal) <= FEWEST_LIMIT
+    if plan.ok and small and all(len(step) == 1 for step in plan.steps):
         _fewest(plan)
 
 
@@ -1036,11 +1037,13 @@ def _fewest(plan: Plan) -> None:
     if before <= assignment_lower_bound(p.initial, p.goal):
         return
     fewer = fewer_moves(plan, DEFAULT_MARGIN, FEWEST_BUDGET)
+    within = f"within {DEFAULT_MARGIN} cells of start and goal"
     if fewer:
-        plan.notes.append(f"exact search: {plan.moves} moves, the fewest (the heuristics "
-                          f"planned {before})")
+        plan.notes.append(f"exact search: {plan.moves} moves, the fewest {within} (the "
+                          f"heuristics planned {before})")
     elif fewer is False:
-        plan.notes.append(f"exact search: no plan has fewer than these {before} moves")
+        plan.notes.append(f"exact search: no plan {within} has fewer than these {before} "
+                          "moves")
 
 
 def _shorten(plan: Plan) -> int:

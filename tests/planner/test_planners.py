@@ -91,11 +91,12 @@ def test_complete_takes_the_fewest_moves_on_small_fleets_when_the_search_finds_t
     # budget. Scrambled 10 seed 2: no plan is shorter, and the search proves it. With too
     # small a budget the heuristics' plan stays, and nothing is claimed.
     plan = run("complete", "thesis-12")
-    assert plan.moves == 18 and "exact search: 18 moves, the fewest (the heuristics planned 19)" in plan.notes
+    assert plan.moves == 18 and ("exact search: 18 moves, the fewest within 3 cells of start "
+                                 "and goal (the heuristics planned 19)") in plan.notes
     p = random_scrambled_problem(10, 2)
     proved = planners.get("complete").plan(p)
     assert proved.moves == 12 and proved.notes[-1] == (
-        "exact search: no plan has fewer than these 12 moves")
+        "exact search: no plan within 3 cells of start and goal has fewer than these 12 moves")
     heuristic = Plan("complete", as_problem(load("thesis-12")))
     complete._plan_phases(heuristic, complete.EXACT_LIMIT)
     complete._shorten(heuristic)
