@@ -1185,7 +1185,8 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
 
 #: How the last resort's plans say where they come from.
 DUG_NOTE = "relays stuck; holes dug open and refilled"
-SMOOTHED_NOTE = "relays stuck; start and goal smoothed (notches filled), holes dug open and refilled"
+SMOOTHED_NOTE = ("relays stuck; start and goal smoothed (notches filled), holes dug open and "
+                 "refilled")
 PINNED_NOTE = "relays stuck; run again with pinned electrons first"
 
 

@@ -156,7 +156,8 @@ def test_exact_benchmark():
     # configurations it expands, how long it takes, and how far ``complete`` is from the
     # fewest moves. Asserted: legal plans, and never more moves than ``complete``.
     print()
-    print(f"{'instance':20} {'bound':>5} {'exact':>5} {'complete':>8} {'configs':>8} {'exact s':>8}")
+    print(f"{'instance':20} {'bound':>5} {'exact':>5} {'complete':>8} {'configs':>8} "
+          f"{'exact s':>8}")
     for family, which in EXACT_CASES:
         problem = (planners.as_problem(load(which)) if family == "thesis"
                    else FAMILIES[family](10, which))
