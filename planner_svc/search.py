@@ -120,17 +120,26 @@ def search_moves(start: frozenset[Coord], goal: frozenset[Coord], fixed: Coord,
                       max_configurations, cap)
 
 
+def _search(occ: Iterable[Cell | Coord], goal: Iterable[Cell | Coord], fixed: Cell | Coord,
+            obstacles: Iterable[Cell | Coord], margin: int, max_configurations: int,
+            cap: int | None = None
+            ) -> tuple[list[tuple[frozenset[Coord], Coord, object]] | None, int]:
+    """:func:`search_moves` from ``occ`` to ``goal`` (cells or tuples), within ``margin`` of
+    both."""
+    start = frozenset(xy(c) for c in occ)
+    end = frozenset(xy(c) for c in goal)
+    region = region_around(set(start | end), margin)
+    return search_moves(start, end, xy(fixed), {xy(c) for c in obstacles}, region,
+                        max_configurations, cap)
+
+
 def search_from(plan: Plan, occ: Iterable[Cell | Coord], margin: int = DEFAULT_MARGIN,
                 max_configurations: int = DEFAULT_MAX_CONFIGURATIONS) -> int:
     """Append to ``plan`` the fewest moves from the configuration ``occ`` to its goal and
     set ``plan.ok``, or say in ``plan.reason`` why there are none. Returns the number of
     configurations expanded."""
     p = plan.problem
-    start = frozenset(xy(c) for c in occ)
-    goal = frozenset(xy(c) for c in p.goal)
-    region = region_around(set(start | goal), margin)
-    path, expanded = search_moves(start, goal, xy(p.fixed), {xy(c) for c in p.obstacles},
-                                  region, max_configurations)
+    path, expanded = _search(occ, p.goal, p.fixed, p.obstacles, margin, max_configurations)
     if path is None:
         if expanded > max_configurations:
             plan.reason = f"exact search gave up after {max_configurations} configurations"
@@ -150,11 +159,8 @@ def fewer_moves(plan: Plan, margin: int = DEFAULT_MARGIN,
     gave up first. Only configurations that could lead to a shorter plan are expanded,
     so a plan close to the fewest costs little to confirm."""
     p = plan.problem
-    start = frozenset(xy(c) for c in p.initial)
-    goal = frozenset(xy(c) for c in p.goal)
-    region = region_around(set(start | goal), margin)
-    path, expanded = search_moves(start, goal, xy(p.fixed), {xy(c) for c in p.obstacles},
-                                  region, max_configurations, cap=plan.moves - 1)
+    path, expanded = _search(p.initial, p.goal, p.fixed, p.obstacles, margin,
+                             max_configurations, cap=plan.moves - 1)
     if path is None:
         return None if expanded > max_configurations else False
     plan.steps = [[to_move(conf, m, rule)] for conf, m, rule in path]
@@ -173,11 +179,7 @@ def plan_exact(plan: Plan, margin: int = DEFAULT_MARGIN,
 def exact_reachable(initial, goal, fixed, obstacles=(), margin: int = DEFAULT_MARGIN,
                     max_configurations: int = DEFAULT_MAX_CONFIGURATIONS) -> bool | None:
     """True/False if the search decides reachability, None if it hit its limit."""
-    start = frozenset(xy(c) for c in initial)
-    g = frozenset(xy(c) for c in goal)
-    region = region_around(set(start | g), margin)
-    path, expanded = search_moves(start, g, xy(fixed), {xy(c) for c in obstacles}, region,
-                                  max_configurations)
+    path, expanded = _search(initial, goal, fixed, obstacles, margin, max_configurations)
     if path is None and expanded > max_configurations:
         return None
     return path is not None
