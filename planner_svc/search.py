@@ -24,7 +24,7 @@ from typing import Callable, Iterable
 
 from bus.lattice import Cell
 
-from .bounds import distance_matrix, min_cost_assignment
+from .bounds import assignment_cost
 from .plan import Plan
 from .rules import RULE_OFFSETS, Coord, _legal_xy, to_move, xy
 
@@ -105,8 +105,7 @@ def search_moves(start: frozenset[Coord], goal: frozenset[Coord], fixed: Coord,
         electrons = sorted(conf - goal)
         if not electrons:
             return 0
-        voids = [g for g in goal_list if g not in conf]
-        return int(round(min_cost_assignment(distance_matrix(electrons, voids))[1]))
+        return assignment_cost(electrons, [g for g in goal_list if g not in conf])
 
     def successors(conf: frozenset[Coord]):
         occ = set(conf)

@@ -395,6 +395,35 @@ def test_the_shared_assignment_is_the_hungarian_one():
     assert list(again) == list(ref)
 
 
+def test_small_assignments_run_the_same_method_without_numpy(monkeypatch):
+    # Below PLAIN_ROWS rows the method runs on lists (the A* estimates solve thousands of
+    # tiny ones); both loops and a brute force must agree on the cost, and each
+    # assignment must cost what it says.
+    import itertools
+    import random
+
+    import numpy as np
+
+    from planner_svc import bounds
+    rng = random.Random(5)
+    for n in [1, 2, 3, 4, 5, 6, 12, 40, 70]:
+        for _ in range(3 if n > 6 else 20):
+            cost = np.array([[rng.randint(0, 30) for _ in range(n)] for _ in range(n)])
+            col, total = bounds.min_cost_assignment(cost)
+            assert sorted(col) == list(range(n))
+            assert total == cost[np.arange(n), col].sum()
+            monkeypatch.setattr(bounds, "PLAIN_ROWS", 0)
+            assert bounds.min_cost_assignment(cost)[1] == total
+            monkeypatch.undo()
+            if n <= 6:
+                assert total == min(sum(cost[i, p[i]] for i in range(n))
+                                    for p in itertools.permutations(range(n)))
+    cells = [(rng.randint(-9, 9), rng.randint(-9, 9)) for _ in range(10)]
+    a, b = cells[:5], cells[5:]
+    assert bounds.assignment_cost(a, b) == bounds.min_cost_assignment(
+        bounds.distance_matrix(a, b))[1]
+
+
 def test_front_walk_tries_another_electron_when_a_walk_fails():
     # Eden blob, 100 modules, seed 0: the cheapest electron by the breadth-first search
     # from the void (which pivots on the electron itself) cannot make the walk. Before
