@@ -658,7 +658,7 @@ class _AssignWalk(_Phase):
         occ.add(v)
         self.walks += 1
         for c in (e, v):
-            for d in _disk(c, 2):
+            for d in disk(c, 2):
                 self.can.pop(d, None)
         self._unlist(e)
         del self.pair[e]
@@ -735,7 +735,8 @@ FRONT_WALK_SLACK = 600
 FRONT_SURFACE = True
 
 
-def _disk(c: Coord, r: int) -> list[Coord]:
+def disk(c: Coord, r: int) -> list[Coord]:
+    """The cells within hex distance ``r`` of ``c``."""
     x, y = c
     return [(x + dx, y + dy) for dx in range(-r, r + 1)
             for dy in range(max(-r, -dx - r), min(r, -dx + r) + 1)]
@@ -889,7 +890,7 @@ class _FrontWalk(_Phase):
             return False
         # No nearby void may become unenterable (judged on the settled cells: the
         # electrons nearby will leave).
-        settled = {c for w in ring2(v) for c in _disk(w, 3) if c in occ and c in self.goal}
+        settled = {c for w in ring2(v) for c in disk(w, 3) if c in occ and c in self.goal}
         after = settled | {v}
         if any(w in self.owner and not enterable(after, w, ob)
                and enterable(settled, w, ob) for w in ring2(v)):
@@ -984,14 +985,14 @@ class _FrontWalk(_Phase):
             self.pair[e0] = v0
             self.owner[v0] = e0
         # Local updates: rotations and void checks depend on nearby cells only.
-        for c in _disk(e, 2) + _disk(v, 2):
+        for c in disk(e, 2) + disk(v, 2):
             if c in self.pair and c != self.fixed:
                 if can_move(occ, c, self.obstacles):
                     self.movable.add(c)
                 else:
                     self.movable.discard(c)
         self.movable.discard(e)
-        for c in _disk(e, FRONT_RADIUS) + _disk(v, FRONT_RADIUS):
+        for c in disk(e, FRONT_RADIUS) + disk(v, FRONT_RADIUS):
             self.not_ready.discard(c)
 
 
@@ -1013,17 +1014,18 @@ def plan_complete(plan: Plan, exact_limit: int = EXACT_LIMIT) -> None:
 
     If the heuristic gets stuck going forwards, it also tries the reverse problem
     (goal to initial) and plays that plan backwards, since every move is reversible.
-    The plan is then shortened (:mod:`planner_svc.shorten`), unless it is made of lone
-    walks only (phases 0 and 1): each electron walks once, along a shortest path, to a
-    void it keeps, so no module comes back to a cell and no configuration recurs
-    (on the 5e5 moves of a tree of 1000 modules it would spend 1 s finding nothing).
+    The plan is then shortened (:mod:`planner_svc.shorten`, stretches re-planned in
+    windows too), unless it is made of lone walks only (phases 0 and 1): each electron
+    walks once, along a shortest path, to a void it keeps, so no module comes back to a
+    cell and no configuration recurs (on the 5e5 moves of a tree of 1000 modules it
+    would spend 1 s finding nothing).
 
     On fleets of :data:`FEWEST_LIMIT` modules or fewer, the exact search then looks for a
     plan with fewer moves (:func:`planner_svc.search.fewer_moves`, at most
     :data:`FEWEST_BUDGET` configurations) and takes it if there is one.
     """
     if not _plan_phases(plan, exact_limit):
-        _shorten(plan)
+        _shorten(plan, windows=True)
     small = len(plan.problem.goal) <= FEWEST_LIMIT
     if plan.ok and small and all(len(step) == 1 for step in plan.steps):
         _fewest(plan)
@@ -1046,10 +1048,10 @@ def _fewest(plan: Plan) -> None:
                           "moves")
 
 
-def _shorten(plan: Plan) -> int:
+def _shorten(plan: Plan, windows: bool = False) -> int:
     # Imported here: planner_svc.shorten uses this module's move primitives.
     from .shorten import shorten
-    return shorten(plan)
+    return shorten(plan, windows)
 
 
 def _shortened_difference(a: Plan, b: Plan) -> int:
@@ -1307,7 +1309,7 @@ class _Looks:
         """Forget what the cells changed since the last call may have changed."""
         now = frozenset(occ)
         for x in self._occ ^ now:
-            for y in _disk(x, 2):
+            for y in disk(x, 2):
                 for key in self._by_cell.pop(y, ()):
                     self._got.pop(key, None)
         self._occ = now
@@ -2181,7 +2183,7 @@ def local_repair(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set
     :func:`_window_search` (near the window, ``goal`` must be the same at every call
     with it, or decided by the structure there).
     """
-    window = set(_disk(target, radius))
+    window = set(disk(target, radius))
     outside = occ - window
     start = frozenset(occ & window)
     keep = start & goal
@@ -2203,8 +2205,8 @@ def local_repair(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set
                           memo, ("repair",))
 
 
-def _window_moves(window: set[Coord], outside: set[Coord], fixed: Coord,
-                  obstacles: set[Coord], components: _Components | None = None):
+def window_moves(window: set[Coord], outside: set[Coord], fixed: Coord,
+                 obstacles: set[Coord], components: _Components | None = None):
     """Successors for a search inside ``window`` with the structure ``outside`` it still:
     every legal rotation of a module of the window to a cell of the window.
 
@@ -2281,11 +2283,17 @@ def _window_cuts(window: set[Coord], outside: set[Coord], components: _Component
     """``is_cut(conf, full, m)`` for the structure ``full = outside | conf``, ``conf`` inside
     ``window`` and ``outside`` still: exact, and as quick as a search of the window.
 
-    The still part's connected components (:func:`_still_components`) are found once; a
-    search from a neighbour of ``m`` then crosses each component in one step, entering
-    the window again at its ports (on a blob of 1000 modules, a plain search around the
-    window explores hundreds of cells per test)."""
-    label, ports = components or _still_components(window, outside)
+    The still part's connected components (:func:`_still_components`) are found once,
+    at the first test that needs them; a search from a neighbour of ``m`` then crosses
+    each component in one step, entering the window again at its ports (on a blob of
+    1000 modules, a plain search around the window explores hundreds of cells per
+    test). Most tests need none: the ring around ``m`` is one arc (and the searches that
+    re-plan windows mostly stop within a few configurations)."""
+    label: dict[Coord, int] = {}
+    ports: list[set[Coord]] = []
+    if components:
+        label, ports = components
+    ready = [components is not None]
 
     def node(c: Coord, conf: frozenset[Coord]) -> Coord | int | None:
         if c in conf:
@@ -2296,6 +2304,11 @@ def _window_cuts(window: set[Coord], outside: set[Coord], components: _Component
         """Whether ``m`` is a cut vertex of ``full`` (``outside | conf``)."""
         if _ONE_ARC[_ring_mask(full, *m)]:
             return False
+        if not ready[0]:
+            new_label, new_ports = _still_components(window, outside)
+            label.update(new_label)
+            ports.extend(new_ports)
+            ready[0] = True
         want = {n for n in (node(c, conf) for c in neighbours_xy(m)) if n is not None}
         first = want.pop()
         seen = {first, m}
@@ -2325,7 +2338,7 @@ def local_exchange(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: s
     and the void sits behind a notch a few cells away; here they trade places.
     ``memo``: see :func:`_window_search` (the same ``goal`` at every call with it).
     """
-    window = set(_disk(center, radius))
+    window = set(disk(center, radius))
     outside = occ - window
     start = frozenset(occ & window)
     want = goal & window
@@ -2387,7 +2400,7 @@ def local_advance(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: se
     of ``seen``. Settled modules may step aside and back: an electron stopped by a notch
     gets past it. ``memo``: see :func:`_window_search` (the same ``goal`` at every call
     with it); only failures are kept, since ``seen`` grows."""
-    cells = _disk(centre, radius)
+    cells = disk(centre, radius)
     window = set(cells)
     outside = occ - window
     start = frozenset(occ & window)
@@ -2438,14 +2451,14 @@ def _window_search(occ: set[Coord], window: set[Coord], outside: set[Coord], cen
     components = _still_components(window, outside)
     key = None
     if memo is not None:
-        near = frozenset(c for c in _disk(centre, radius + 2) if c in occ)
+        near = frozenset(c for c in disk(centre, radius + 2) if c in occ)
         meets = frozenset(Counter(frozenset(port) for port in components[1] if port).items())
         key = (centre, radius, budget, near, meets, *tag)
         if key in memo:
             kept = memo[key]
             return None if kept is None else list(kept)
     found, _ = best_first(frozenset(occ & window),
-                          _window_moves(window, outside, fixed, obstacles, components),
+                          window_moves(window, outside, fixed, obstacles, components),
                           is_goal, priority, budget)
     path = None if found is None else [(m, rule) for _, m, rule in found]
     if key is not None and (exact() if path is None else keep_found):

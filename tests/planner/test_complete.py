@@ -12,6 +12,7 @@ from planner_svc.bounds import (assignment_lower_bound, random_blob, random_conv
                                 random_sparse_problem, random_sparse_tree, scramble,
                                 walk_reference)
 from planner_svc.plan import Plan, Problem, validate
+from planner_svc.shorten import WINDOWS_NOTE
 from planner_svc.rules import (RULE_OFFSETS, _rule_violation, articulation_cells, find_move,
                                hex_distance, is_connected, neighbours_xy, to_move, xy)
 
@@ -63,7 +64,7 @@ def test_window_cut_test_agrees_with_the_plain_one():
     checked = 0
     for cells in _blobs(6, [150, 300]):
         for _ in range(20):
-            window = set(complete._disk(rng.choice(sorted(cells)), 3))
+            window = set(complete.disk(rng.choice(sorted(cells)), 3))
             outside = cells - window
             conf = frozenset((cells & window) ^ {c for c in window if rng.random() < 0.15})
             cut = complete._window_cuts(window, outside)
@@ -718,9 +719,11 @@ def test_relays_that_wall_voids_in_go_straight_to_digging(monkeypatch, few_voids
     assert plan.ok
     validate(plan)
     assert ("reverse" in runs) is not walled and ("phase 1" in runs) is not walled
-    if walled:      # shortened before it is chosen, the plan says last where it comes from
-        assert plan.notes[-1] in (complete.DUG_NOTE, complete.SMOOTHED_NOTE)
-        assert plan.notes[-2].startswith("shortened by")
+    if walled:      # shortened before it is chosen, the plan says where it comes from, and
+        # what re-planning in windows saved after that (last)
+        assert plan.notes[-1].startswith(WINDOWS_NOTE)
+        assert plan.notes[-2] in (complete.DUG_NOTE, complete.SMOOTHED_NOTE)
+        assert plan.notes[-3].startswith("shortened by")
 
 
 def test_pinned_electrons_make_the_voids_next_to_them_wait():
@@ -760,7 +763,8 @@ def test_the_last_resort_also_digs_from_relays_run_with_pinned_electrons_first(m
         validate(plan)
         plans.append(plan)
     with_pins, without = plans
-    assert with_pins.notes[-1] == complete.PINNED_NOTE
+    assert [n for n in with_pins.notes if not n.startswith(WINDOWS_NOTE)][-1] == (
+        complete.PINNED_NOTE)
     assert complete.PINNED_NOTE not in without.notes
     assert with_pins.moves < without.moves
 
@@ -773,9 +777,9 @@ def test_window_successors_match_a_search_from_scratch():
     rng = random.Random(9)
     checked = 0
     for cells in _blobs(3, [120]):
-        window = set(complete._disk(rng.choice(sorted(cells)), 3))
+        window = set(complete.disk(rng.choice(sorted(cells)), 3))
         outside = cells - window
-        successors = complete._window_moves(window, outside, (0, 0), set())
+        successors = complete.window_moves(window, outside, (0, 0), set())
 
         def scratch(conf):
             full = outside | conf

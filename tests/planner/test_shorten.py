@@ -7,7 +7,7 @@ from planner_svc import complete, planners
 from planner_svc import shorten as shorten_module
 from planner_svc.bounds import random_blob, random_problem, scramble
 from planner_svc.plan import Plan, Problem, validate
-from planner_svc.rules import neighbours_xy, xy
+from planner_svc.rules import hex_distance, neighbours_xy, xy
 from planner_svc.shorten import drop_loops, drop_round_trips, legal, rebuild, shorten
 
 
@@ -144,6 +144,7 @@ def test_complete_plans_come_out_shortened_and_legal(monkeypatch):
     problem = random_problem(40, 2)
     with monkeypatch.context() as m:
         m.setattr(shorten_module, "ROUNDS", 0)         # shortening off
+        m.setattr(shorten_module, "WINDOW_ROUNDS", 0)
         raw = planners.get("complete").plan(problem)
     plan = planners.get("complete").plan(problem)
     validate(plan)
@@ -151,3 +152,56 @@ def test_complete_plans_come_out_shortened_and_legal(monkeypatch):
     assert not any(n.startswith("shortened by") for n in raw.notes)
     assert plan.moves <= raw.moves - 20
     assert any(n.startswith("shortened by") for n in plan.notes)
+
+
+def test_windows_replan_what_loops_and_round_trips_leave():
+    # Random walks shortened as far as loops and round trips go still hold knots: in a
+    # small window, fewer rotations give the same cells. Re-planned, each plan stays
+    # legal, ends in place, is shorter again, and says so last.
+    more = 0
+    for seed in range(6):
+        plan = _random_walk_plan(30, 120, seed)
+        end = _end(plan)
+        shorten(plan)
+        first = plan.moves
+        got = shorten(plan, windows=True)
+        validate(plan)
+        assert _end(plan) == end and plan.moves == first - got
+        assert got == 0 or plan.notes[-1].startswith(shorten_module.WINDOWS_NOTE)
+        more += got
+    assert more >= 6 * 5
+
+
+def test_a_window_skips_moves_far_from_it_and_plays_them_after_its_own():
+    # Two blobs joined by a long bar, random walks in each, their moves alternating:
+    # no two moves in a row are near each other, so every window found skips the
+    # other blob's moves, which must still be legal once played after its own.
+    rng = random.Random(3)
+    left = random_blob(12, rng)
+    right = {(x + 40, y) for x, y in random_blob(12, rng)}
+    bar = {(x, 0) for x in range(0, 41)}
+    start = left | right | bar
+    occ, hops = set(start), []
+    centres = [(0, 0), (40, 0)]
+    while len(hops) < 160:
+        centre = centres[len(hops) % 2]
+        m = rng.choice(sorted(c for c in occ if hex_distance(c, centre) <= 4))
+        steps = [g for _, g in complete.lone_steps(occ, m, set())
+                 if hex_distance(g, centre) <= 4]
+        if not steps:
+            continue
+        g = rng.choice(steps)
+        if legal(occ, m, g, (20, 0), frozenset()) is None:
+            continue
+        hops.append((m, g))
+        occ.discard(m)
+        occ.add(g)
+    kept = drop_round_trips(start, drop_loops(start, hops), (20, 0), frozenset())
+    sides = [a[0] < 20 for a, _ in kept]
+    assert sum(x != y for x, y in zip(sides, sides[1:])) > len(kept) // 2
+    new, left_over = shorten_module.replan_windows(start, kept, (20, 0), frozenset(), 3,
+                                                   10 ** 6)
+    assert len(new) <= len(kept) - 10 and left_over < 10 ** 6       # 52 -> 35
+    steps = rebuild(start, new, (20, 0), frozenset())
+    assert steps is not None
+    validate(steps, [*start], [*occ], (20, 0))
