@@ -12,9 +12,10 @@ last the goal is the start scrambled:
   relays and local exchanges of ``complete`` stall on the instances of 100 and 1000
   modules; its last resort, hole digging (planned peels played forward and back),
   also between smoothed shapes (notches of start and goal filled first), solves the
-  three of 100 modules (2.6-4.7x the bound once shortened, mean 3.4x, 7-16 s) and,
-  with advances and a nearest-first peel for craters that end in a flat face, the one of
-  1000 (8.2x the bound, about a minute; of seeds 0-4, 0, 2 and 3 are solved).
+  three of 100 modules (2.1-3.8x the bound once shortened and re-planned in windows,
+  mean 2.75x, 8-16 s) and, with advances and a nearest-first peel for craters that end
+  in a flat face, the one of 1000 (7.0x the bound, about a minute; of seeds 0-4, 0, 2
+  and 3 are solved).
 * **sparse**: random trees (:func:`random_sparse_problem`) in which no module has
   more than three occupied neighbours and no empty cell more than two, so walkers fit
   between branches. Note: these trees spread out (radius ~ n/4), so the bound and the
@@ -28,9 +29,9 @@ last the goal is the start scrambled:
   rotations (:func:`random_scrambled_problem`): reachable by construction, so this
   family measures completeness. The random walkers leave thin tendrils and sometimes
   seal a pocket (an electron walled in), which must be reopened. Solved at 1000 modules since
-  electrons advance along the surface towards far voids: seeds 0, 2 and 3 at 2.15-2.53x
-  the bound once shortened in 3-5 s; seed 1 by the last resort, relays with pinned
-  electrons first and a dig (3.49x, 20 s).
+  electrons advance along the surface towards far voids: seeds 0, 2 and 3 at 1.75-1.97x
+  the bound once shortened and re-planned in windows, in 7-9 s; seed 1 by the last
+  resort, relays with pinned electrons first and a dig (2.49x, 21 s).
 
 Each instance also gets a *walk reference*
 (:func:`planner_svc.bounds.walk_reference`): the same assignment with each module's cost
@@ -55,7 +56,7 @@ per family gives, for ``complete``: instances solved, and per size the worst tim
 A second benchmark times the ``exact`` planner (A* estimating each configuration's
 assignment bound) on the thesis's scenarios and on the Eden and scrambled instances of
 10 modules, and prints ``complete``'s moves beside its fewest (thesis-12: 18 moves in 1720
-configurations, 1.4 s; ``complete`` ends with that search on fleets of 12 or fewer, so it
+configurations, 0.6 s; ``complete`` ends with that search on fleets of 12 or fewer, so it
 has 18 too).
 """
 
