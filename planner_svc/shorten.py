@@ -320,8 +320,8 @@ def shorten(plan: Plan, windows: bool = False) -> int:
         radii = f"{WINDOW_RADII[0]}-{WINDOW_RADII[-1]}"
         fewer = dropped - len(hops)
         plan.notes.append(f"{WINDOWS_NOTE}: {fewer} move{'s' if fewer > 1 else ''} fewer "
-                          f"(stretches of moves within {radii} cells replaced by the fewest "
-                          "rotations there, by A* search)")
+                          f"(stretches of moves inside disks of radius {radii} replaced by "
+                          "the fewest rotations inside, found by A* search)")
     return before - len(hops)
 
 
