@@ -43,7 +43,7 @@ def test_shortened_random_walks_are_legal_end_in_place_and_shorter():
 def test_shortened_walks_among_obstacles_stay_legal():
     # Random walks among obstacles (a third of the free cells around a blob): the
     # shortened plan keeps to the rows the obstacles allow and still ends in place.
-    saved = 0
+    saved = replanned = 0
     for seed in range(8):
         rng = random.Random(seed)
         start = random_blob(20, rng)
@@ -68,7 +68,14 @@ def test_shortened_walks_among_obstacles_stay_legal():
         saved += shorten(plan)
         validate(plan)
         assert _end(plan) == occ
-    assert saved > 0
+        # Windows keep off the obstacles: every move they re-plan (here in the raw walk)
+        # is legal as it stands.
+        for radius in shorten_module.WINDOW_RADII:
+            fewer, _ = shorten_module.replan_windows(start, hops, (0, 0),
+                                                     frozenset(obstacles), radius, 10 ** 6)
+            assert rebuild(start, fewer, (0, 0), frozenset(obstacles)) is not None
+            replanned += len(hops) - len(fewer)
+    assert saved > 0 and replanned > 0
 
 
 def test_a_configuration_loop_is_cut_out():
