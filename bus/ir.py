@@ -12,7 +12,7 @@ known to be garbled whose value the collision does not change are not repeated.
 from __future__ import annotations
 
 import json
-from bisect import bisect_left, insort
+from bisect import bisect_left
 from dataclasses import dataclass, field
 from typing import Any, Callable
 

@@ -17,7 +17,7 @@ from bus.functions import ACK_UNKNOWN, FUNCTIONS, Board, FunctionCode as F
 from bus.lattice import Cell, Direction, Joint, Side, body_to_global, move_rule
 from bus.pins import IR_SEL_MASK, LED_JOINT, LED_NEG, LED_POS, Pin, fold, ir_select_bits, ir_selected
 from bus.timing import (ECHO_TIMEOUT_TICKS, HANDSHAKE_RETRY_TICKS, LOCALIZE_LISTEN_TICKS,
-                        SUBSTRATE_ACK_DELAY_TICKS, TICK_NS, Baud, byte_time_ns,
+                        SUBSTRATE_ACK_DELAY_TICKS, TICK_NS, Baud,
                         localize_slot_ticks)
 
 from .avr import TIMEOUT, Delay, Mcu, Program, Rx, Tx, Uart

@@ -139,7 +139,7 @@ import bisect
 import functools
 import heapq
 import itertools
-from collections import Counter, deque
+from collections import deque
 from typing import Callable, Iterable, Iterator
 
 from bus.lattice import NEIGHBOUR_OFFSET, Cell, Side
@@ -149,7 +149,11 @@ from .bounds import (assignment_lower_bound, distance_matrix, electron_void_assi
 from .plan import Plan, Problem
 from .rules import (RULE_OFFSETS, SIDE_OFFSETS, Coord, Move, MoveRule, find_move,
                     hex_distance, is_connected, neighbours_xy, to_move, xy)
-from .search import DEFAULT_MARGIN, best_first, fewer_moves, search_from
+from .moves import GOAL_OFFSET, Path, bfs, can_move, disk, is_cut, lone_steps, ring2, walk
+from .search import DEFAULT_MARGIN, fewer_moves, search_from
+from .shorten import shorten
+from .windows import (FAR, local_advance, local_exchange, local_repair, surface_distance,
+                      surface_field)
 
 #: Fleets up to this size fall back to the exact search when the heuristic is stuck.
 EXACT_LIMIT = 10
@@ -181,16 +185,8 @@ REPAIR_CALLS = 16
 EXCHANGE_WINDOW = (4, 1000)
 #: Local advance (:func:`local_advance`): window radius around an electron, expansions.
 ADVANCE_WINDOW = (4, 1500)
-#: How much a local advance must lower the window's electrons' surface distances.
-ADVANCE_GAIN = 2
-#: Surface distance counted at most per electron in a local advance (far is far).
-ADVANCE_CAP = 50
 #: Local advance searches allowed until the voids left reach a new low.
 ADVANCE_CALLS = 24
-#: Surface distance of a cell the surface field does not reach.
-FAR = 10 ** 4
-#: Weight of the remaining defects against moves made in the local repair search.
-REPAIR_WEIGHT = 3
 #: Hole digging (last resort, :meth:`_Heuristic._hole_step`): planned fills per run,
 #: most voids per hole (larger ones are lakes, opened instead), peels per hole beyond its
 #: cells, least distance of a parking cell from the aimed hole cell, electrons tried per
@@ -238,223 +234,6 @@ SMOOTH_LIMIT = 300
 SMOOTH_WINDOW = (3, 1500)
 #: Move cap per module: relays that wander without filling voids must end.
 MAX_MOVES_PER_MODULE = 60
-
-Path = list[tuple[Coord, MoveRule]]
-
-_GOAL_OFFSET = {r: go for r, _, _, go in RULE_OFFSETS}
-_DIRS: tuple[Coord, ...] = ((-1, 1), (0, 1), (1, 0), (1, -1), (0, -1), (-1, 0))
-
-
-# --- connectivity ------------------------------------------------------------------------
-def is_cut(occ: set[Coord], c: Coord, limit: int | None = None) -> bool:
-    """Whether removing the module at ``c`` disconnects ``occ``.
-
-    Local test first: if the occupied neighbours of ``c`` form one contiguous arc they
-    stay connected to each other around ``c``, so the rest stays connected. Otherwise
-    searches from the arcs must meet without ``c`` (:func:`_arcs_meet`).
-    With ``limit``, a breadth-first search from one neighbour that explores more than
-    ``limit`` cells answers True: conservative (True may be wrong, the module then only
-    waits; False never is).
-    """
-    x, y = c
-    mask = _ring_mask(occ, x, y)
-    if _ONE_ARC[mask]:
-        return False
-    if limit is None:
-        # One neighbour per arc: the first of each run of occupied neighbours.
-        return not _arcs_meet(occ, c, [(x + _DIRS[i][0], y + _DIRS[i][1])
-                                       for i in _ARC_STARTS[mask]])
-    nbrs = [(x + dx, y + dy) for i, (dx, dy) in enumerate(_DIRS) if mask >> i & 1]
-    want = set(nbrs[1:])
-    seen = {c, nbrs[0]}
-    todo = deque([nbrs[0]])
-    while todo:
-        a, b = todo.popleft()
-        for dx, dy in _DIRS:
-            n = (a + dx, b + dy)
-            if n in occ and n not in seen:
-                seen.add(n)
-                want.discard(n)
-                if not want:
-                    return False
-                todo.append(n)
-        if limit is not None and len(seen) > limit:
-            return True
-    return True
-
-
-def _arcs_meet(occ: set[Coord], c: Coord, starts: list[Coord]) -> bool:
-    """Whether the cells of ``starts`` stay connected in ``occ`` without ``c``.
-
-    One breadth-first search per start, in turn a cell each; searches that touch
-    merge. The answer comes when all have merged (connected) or when a merged group
-    has nothing left to explore (it is a component without the others). So a cut
-    costs about the smaller side, times the number of arcs, not the whole structure
-    (a plain search from one side explores all of it when it starts on the big one).
-    """
-    k = len(starts)
-    owner: dict[Coord, int] = {c: -1}
-    group = list(range(k))                      # union-find over the searches
-    pending = [1] * k                           # cells queued, per group root
-    todo = [deque([s]) for s in starts]
-    for i, s in enumerate(starts):
-        owner[s] = i
-
-    def root(i: int) -> int:
-        while group[i] != i:
-            group[i] = group[group[i]]
-            i = group[i]
-        return i
-
-    groups = k
-    while True:
-        for i in range(k):
-            if not todo[i]:
-                continue
-            a, b = todo[i].popleft()
-            r = root(i)
-            pending[r] -= 1
-            for dx, dy in _DIRS:
-                n = (a + dx, b + dy)
-                if n not in occ:
-                    continue
-                o = owner.get(n)
-                if o is None:
-                    owner[n] = i
-                    todo[i].append(n)
-                    pending[r] += 1
-                elif o >= 0 and (ro := root(o)) != r:
-                    group[ro] = r
-                    pending[r] += pending[ro]
-                    groups -= 1
-                    if groups == 1:
-                        return True
-            if pending[r] == 0:
-                return False
-
-
-def can_move(occ: set[Coord], c: Coord, obstacles: set[Coord]) -> bool:
-    """Whether the module at ``c`` has at least one legal rotation (ignoring connectivity)."""
-    return next(lone_steps(occ, c, obstacles), None) is not None
-
-
-# --- walks ---------------------------------------------------------------------------------
-def walk(rest: set[Coord], start: Coord, targets: set[Coord], obstacles: set[Coord],
-         limit: int | None = None, explored: set[Coord] | None = None) -> Path | None:
-    """Shortest walk of a lone module from ``start`` to the nearest cell of ``targets``.
-
-    ``rest`` is the structure without the walker; it must be connected and stays
-    still. Returns the rotations as ``(cell before, rule)`` or None. ``limit`` caps the
-    number of cells explored; ``explored``, if given, gets them.
-    """
-    came: dict[Coord, tuple[Coord, MoveRule] | None] = {start: None}
-    todo = deque([start])
-    end: Coord | None = None
-    while todo:
-        c = todo.popleft()
-        if c in targets and c != start:
-            end = c
-            break
-        for rule, g in lone_steps(rest, c, obstacles, came):
-            came[g] = (c, rule)
-            todo.append(g)
-        if limit is not None and len(came) > limit:
-            break
-    if explored is not None:
-        explored.update(came)
-    if end is None:
-        return None
-    path: Path = []
-    while (step := came[end]) is not None:
-        path.append(step)
-        end = step[0]
-    return path[::-1]
-
-
-def _ring_rules() -> tuple[tuple[tuple[MoveRule, Coord, tuple[Coord, ...]], ...], ...]:
-    """For every pattern of the six neighbours (``occupied``, ``blocked`` bit masks in
-    :data:`_DIRS` order, the occupied ones blocked too), the Table 4-3 rows whose
-    substrate is there and whose goal and near sweep cells are free, in
-    :data:`RULE_OFFSETS` order: ``(rule, goal offset, far sweep offsets)``. A walker
-    then checks only the sweep cell two away (a module with four or more neighbours
-    gets no row: a rotation needs three free cells around it)."""
-    index = {d: i for i, d in enumerate(_DIRS)}
-    table = []
-    for key in range(64 * 64):
-        occupied, blocked = key >> 6, key & 63
-        rows = []
-        if occupied & ~blocked == 0:
-            for rule, s, empties, g in RULE_OFFSETS:
-                near = [e for e in empties if e in index]
-                if (occupied >> index[s] & 1 and not blocked >> index[g] & 1
-                        and not any(blocked >> index[e] & 1 for e in near)):
-                    rows.append((rule, g, tuple(e for e in empties if e not in index)))
-        table.append(tuple(rows))
-    return tuple(table)
-
-
-_RING_RULES = _ring_rules()
-#: Per neighbour pattern: the first direction (:data:`_DIRS` index) of each contiguous arc
-#: of occupied neighbours.
-_ARC_STARTS = tuple(tuple(i for i in range(6) if m >> i & 1 and not m >> (i - 1) % 6 & 1)
-                    for m in range(64))
-#: At most one arc: the neighbours stay connected around the cell, so it is no cut vertex.
-_ONE_ARC = tuple(len(starts) <= 1 for starts in _ARC_STARTS)
-
-
-def _ring_mask(cells: set[Coord] | frozenset[Coord], x: int, y: int) -> int:
-    """Which of the six neighbours of ``(x, y)`` are in ``cells``, as :data:`_DIRS` bits."""
-    return (((x - 1, y + 1) in cells) | ((x, y + 1) in cells) << 1
-            | ((x + 1, y) in cells) << 2 | ((x + 1, y - 1) in cells) << 3
-            | ((x, y - 1) in cells) << 4 | ((x - 1, y) in cells) << 5)
-
-
-def lone_steps(rest: set[Coord], c: Coord, obstacles: set[Coord],
-               skip: set[Coord] | dict[Coord, object] = frozenset()
-               ) -> Iterator[tuple[MoveRule, Coord]]:
-    """The legal rotations of a lone walker at ``c`` over the still structure ``rest``:
-    ``(rule, goal cell)`` for each Table 4-3 row whose substrate is there and whose goal
-    and sweep cells are free; goal cells in ``skip`` (already reached by a search) are
-    left out before the sweep is checked."""
-    cx, cy = c
-    occupied = _ring_mask(rest, cx, cy)
-    blocked = occupied | _ring_mask(obstacles, cx, cy) if obstacles else occupied
-    for rule, (gx, gy), far in _RING_RULES[occupied << 6 | blocked]:
-        g = (cx + gx, cy + gy)
-        if g in skip:
-            continue
-        for ex, ey in far:
-            e = (cx + ex, cy + ey)
-            if e in rest or e in obstacles:
-                break
-        else:
-            yield rule, g
-
-
-def bfs(rest: set[Coord], start: Coord, obstacles: set[Coord]
-        ) -> dict[Coord, tuple[int, Coord | None, MoveRule | None]]:
-    """Walk lengths from ``start`` to every cell a lone walker reaches over ``rest``:
-    ``cell -> (moves, previous cell, rule)``."""
-    out: dict[Coord, tuple[int, Coord | None, MoveRule | None]] = {start: (0, None, None)}
-    todo = deque([start])
-    while todo:
-        c = todo.popleft()
-        d = out[c][0] + 1
-        for rule, g in lone_steps(rest, c, obstacles, out):
-            out[g] = (d, c, rule)
-            todo.append(g)
-    return out
-
-
-_RING2 = tuple((dx, dy) for dx in range(-2, 3) for dy in range(-2, 3)
-               if 0 < (abs(dx) + abs(dy) + abs(dx + dy)) // 2 <= 2)
-
-
-def ring2(c: Coord) -> list[Coord]:
-    """The cells at hex distance 1 or 2 from ``c``."""
-    x, y = c
-    return [(x + dx, y + dy) for dx, dy in _RING2]
-
 
 # --- fill order ------------------------------------------------------------------------------
 def enterable(settled: set[Coord], void: Coord, obstacles: frozenset[Coord] | set[Coord] = frozenset()
@@ -712,7 +491,7 @@ class _AssignWalk(_Phase):
             if not path:
                 continue
             cell, rule = path[-1]
-            gx, gy = _GOAL_OFFSET[rule]
+            gx, gy = GOAL_OFFSET[rule]
             v = (cell[0] + gx, cell[1] + gy)
             other = owner[v]
             mine = pair[e]
@@ -738,12 +517,6 @@ FRONT_WALK_SLACK = 600
 #: Choose the electron for a void by walk length over the surface (else by hex distance).
 FRONT_SURFACE = True
 
-
-def disk(c: Coord, r: int) -> list[Coord]:
-    """The cells within hex distance ``r`` of ``c``."""
-    x, y = c
-    return [(x + dx, y + dy) for dx in range(-r, r + 1)
-            for dy in range(max(-r, -dx - r), min(r, -dx + r) + 1)]
 
 
 class _FrontWalk(_Phase):
@@ -1053,8 +826,6 @@ def _fewest(plan: Plan) -> None:
 
 
 def _shorten(plan: Plan, windows: bool = False) -> int:
-    # Imported here: planner_svc.shorten uses this module's move primitives.
-    from .shorten import shorten
     return shorten(plan, windows)
 
 
@@ -2171,303 +1942,6 @@ def smoothed_plan(plan: Plan, *, advance: bool = False, hole_calls: int = HOLE_C
     plan.steps = head + mid.steps + reverse_steps(back, p)
     plan.ok = True
     return True
-
-
-def local_repair(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set[Coord],
-                 target: Coord, radius: int, budget: int,
-                 memo: dict[tuple, Path | None] | None = None) -> Path | None:
-    """Best-first search for a short sequence of rotations, inside a window of ``radius``
-    around ``target``, that fills a blocked void at ``target`` (or empties a trapped
-    electron's cell) while every settled goal cell of the window stays occupied, except
-    at most one on the surface.
-
-    This digs a pocket open and closes it again behind the new module: the vacancy
-    moves out to the surface, where relays can fill it. The rest of the structure stays
-    still, so connectivity is checked on the whole of it. ``memo``: see
-    :func:`_window_search` (near the window, ``goal`` must be the same at every call
-    with it, or decided by the structure there).
-    """
-    window = set(disk(target, radius))
-    outside = occ - window
-    start = frozenset(occ & window)
-    keep = start & goal
-    fill = target not in occ
-    surface = {c for c in keep if c != fixed and c != target
-               and any(n not in occ and n not in goal for n in neighbours_xy(c))}
-
-    def missing(conf: frozenset[Coord]) -> int:
-        miss = keep - conf
-        return len(miss) if len(miss) != 1 or not miss <= surface else 0
-
-    def score(conf: frozenset[Coord]) -> int:
-        return ((target not in conf) if fill else (target in conf)) + missing(conf)
-
-    # Weighted: the score counts cells, a repair needs several moves each.
-    return _window_search(occ, window, outside, target, radius, fixed, obstacles,
-                          lambda conf: score(conf) == 0,
-                          lambda g, conf: g + REPAIR_WEIGHT * score(conf), budget,
-                          memo, ("repair",))
-
-
-def window_moves(window: set[Coord], outside: set[Coord], fixed: Coord,
-                 obstacles: set[Coord], components: _Components | None = None):
-    """Successors for a search inside ``window`` with the structure ``outside`` it still:
-    every legal rotation of a module of the window to a cell of the window.
-
-    A module's rotations depend on the cells within two of it only, so a configuration's
-    table of them (module -> rotations into the window) is its parent's with the modules
-    near the two cells that changed looked up again (the searches spent most of their
-    time here)."""
-    is_cut_in = _window_cuts(window, outside, components)
-    tables: dict[frozenset[Coord], dict[Coord, list[tuple[MoveRule, Coord]]]] = {}
-    #: A configuration generated and not yet expanded -> (its parent, cell left, cell entered).
-    made: dict[frozenset[Coord], tuple[frozenset[Coord], Coord, Coord]] = {}
-
-    def rotations(full: set[Coord], m: Coord) -> list[tuple[MoveRule, Coord]]:
-        if m == fixed:
-            return []
-        # full holds m: no cell checked is m.
-        return [(rule, d) for rule, d in lone_steps(full, m, obstacles) if d in window]
-
-    def successors(conf: frozenset[Coord]):
-        full = outside | conf
-        link = made.pop(conf, None)
-        if link is None:
-            table = {m: rotations(full, m) for m in conf}
-        else:
-            parent, left, entered = link
-            table = dict(tables[parent])
-            del table[left]
-            table[entered] = rotations(full, entered)
-            for c in {*ring2(left), *ring2(entered)}:
-                if c in conf:
-                    table[c] = rotations(full, c)
-        tables[conf] = table
-        for m in conf:
-            steps = table[m]
-            if not steps or is_cut_in(conf, full, m):
-                continue
-            rest = conf - {m}
-            for rule, d in steps:
-                nxt = rest | {d}
-                if nxt not in tables:
-                    made.setdefault(nxt, (conf, m, d))
-                yield m, rule, nxt
-    return successors
-
-
-#: The still part of a window search: cell -> component, and each component's *ports*
-#: (the window cells next to it).
-_Components = tuple[dict[Coord, int], list[set[Coord]]]
-
-
-def _still_components(window: set[Coord], outside: set[Coord]) -> _Components:
-    """The connected components of ``outside`` and their ports into ``window``."""
-    label: dict[Coord, int] = {}
-    ports: list[set[Coord]] = []
-    for c in outside:
-        if c in label:
-            continue
-        k = len(ports)
-        label[c] = k
-        todo, port = [c], set()
-        while todo:
-            for n in neighbours_xy(todo.pop()):
-                if n in window:
-                    port.add(n)
-                elif n in outside and n not in label:
-                    label[n] = k
-                    todo.append(n)
-        ports.append(port)
-    return label, ports
-
-
-def _window_cuts(window: set[Coord], outside: set[Coord], components: _Components | None = None
-                 ) -> Callable[[frozenset[Coord], set[Coord], Coord], bool]:
-    """``is_cut(conf, full, m)`` for the structure ``full = outside | conf``, ``conf`` inside
-    ``window`` and ``outside`` still: exact, and as quick as a search of the window.
-
-    The still part's connected components (:func:`_still_components`) are found once,
-    at the first test that needs them; a search from a neighbour of ``m`` then crosses
-    each component in one step, entering the window again at its ports (on a blob of
-    1000 modules, a plain search around the window explores hundreds of cells per
-    test). Most tests need none: the ring around ``m`` is one arc (and the searches that
-    re-plan windows mostly stop within a few configurations)."""
-    label: dict[Coord, int] = {}
-    ports: list[set[Coord]] = []
-    if components:
-        label, ports = components
-    ready = [components is not None]
-
-    def node(c: Coord, conf: frozenset[Coord]) -> Coord | int | None:
-        if c in conf:
-            return c
-        return label.get(c)
-
-    def is_cut_in(conf: frozenset[Coord], full: set[Coord], m: Coord) -> bool:
-        """Whether ``m`` is a cut vertex of ``full`` (``outside | conf``)."""
-        if _ONE_ARC[_ring_mask(full, *m)]:
-            return False
-        if not ready[0]:
-            new_label, new_ports = _still_components(window, outside)
-            label.update(new_label)
-            ports.extend(new_ports)
-            ready[0] = True
-        want = {n for n in (node(c, conf) for c in neighbours_xy(m)) if n is not None}
-        first = want.pop()
-        seen = {first, m}
-        todo = [first]
-        while todo and want:
-            a = todo.pop()
-            cells = ports[a] if isinstance(a, int) else neighbours_xy(a)
-            for c in cells:
-                n = node(c, conf)
-                if n is not None and n not in seen:
-                    seen.add(n)
-                    want.discard(n)
-                    todo.append(n)
-        return bool(want)
-    return is_cut_in
-
-
-def local_exchange(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set[Coord],
-                   center: Coord, radius: int, budget: int,
-                   memo: dict[tuple, Path | None] | None = None) -> Path | None:
-    """Best-first search, inside a window of ``radius`` around ``center``, for rotations
-    after which the window holds one electron and one void fewer (an electron of the
-    window has, directly or through settled modules moving aside and back, filled a void
-    of the window). The rest of the structure stays still.
-
-    Where the relays find no chain the trouble is often local: the electron is walled in
-    and the void sits behind a notch a few cells away; here they trade places.
-    ``memo``: see :func:`_window_search` (the same ``goal`` at every call with it).
-    """
-    window = set(disk(center, radius))
-    outside = occ - window
-    start = frozenset(occ & window)
-    want = goal & window
-
-    def defects(conf: frozenset[Coord]) -> int:
-        return len(want - conf) + len(conf - goal)
-
-    def estimate(conf: frozenset[Coord]) -> int:
-        # defects(conf), weighted, plus how far the window's electrons are from its voids.
-        extra, holes = conf - goal, want - conf
-        gap = sum(min(hex_distance(v, e) for e in extra) for v in holes) if extra else 0
-        return REPAIR_WEIGHT * (len(holes) + len(extra)) + gap
-
-    goal_defects = defects(start) - 2
-    return _window_search(occ, window, outside, center, radius, fixed, obstacles,
-                          lambda conf: defects(conf) <= goal_defects,
-                          lambda g, conf: g + estimate(conf), budget, memo, ("exchange",))
-
-
-def surface_field(occ: set[Coord], voids: set[Coord],
-                  obstacles: set[Coord] | frozenset[Coord] = frozenset()) -> dict[Coord, int]:
-    """Distance from the voids along the surface: breadth-first over free cells that
-    touch the structure (where walkers roll), from every void at once."""
-    field = dict.fromkeys(voids, 0)
-    todo = deque(voids)
-    while todo:
-        c = todo.popleft()
-        for n in neighbours_xy(c):
-            if (n not in field and n not in occ and n not in obstacles
-                    and any(m in occ for m in neighbours_xy(n))):
-                field[n] = field[c] + 1
-                todo.append(n)
-    return field
-
-
-def surface_distance(field: dict[Coord, int]) -> Callable[[Coord], int]:
-    """``cell -> distance`` over a :func:`surface_field`; an occupied cell counts from its
-    nearest free neighbour, a cell out of the field is :data:`FAR`."""
-    known: dict[Coord, int] = {}
-
-    def dist(c: Coord) -> int:
-        if c in field:
-            return field[c]
-        d = known.get(c)
-        if d is None:
-            d = known[c] = min(FAR, min(field.get(n, FAR) for n in neighbours_xy(c)) + 1)
-        return d
-    return dist
-
-
-def local_advance(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set[Coord],
-                  centre: Coord, radius: int, budget: int, dist: Callable[[Coord], int],
-                  seen: set[frozenset[Coord]], memo: dict[tuple, Path | None] | None = None
-                  ) -> Path | None:
-    """Best-first search, inside a window of ``radius`` around the electron at
-    ``centre``, for rotations that bring the window's electrons :data:`ADVANCE_GAIN`
-    nearer the voids in total (``dist``: :func:`surface_distance`, capped at
-    :data:`ADVANCE_CAP` each) without emptying a goal cell or repeating a configuration
-    of ``seen``. Settled modules may step aside and back: an electron stopped by a notch
-    gets past it. ``memo``: see :func:`_window_search` (the same ``goal`` at every call
-    with it); only failures are kept, since ``seen`` grows."""
-    cells = disk(centre, radius)
-    window = set(cells)
-    outside = occ - window
-    start = frozenset(occ & window)
-    want = goal & window
-    missing = want - start
-
-    def potential(conf: frozenset[Coord]) -> int:
-        return sum(min(dist(c), ADVANCE_CAP) for c in conf - goal)
-
-    aim = potential(start) - ADVANCE_GAIN
-    # ``seen`` holds whole configurations: a failure it decided is not the window's alone.
-    refused = []
-
-    def done(conf: frozenset[Coord]) -> bool:
-        if want - conf <= missing and potential(conf) <= aim:
-            if frozenset(outside | conf) not in seen:
-                return True
-            refused.append(conf)
-        return False
-
-    def priority(g: int, conf: frozenset[Coord]) -> int:
-        return g + REPAIR_WEIGHT * len(want - conf - missing) + max(0, potential(conf) - aim)
-
-    far = tuple(min(dist(c), ADVANCE_CAP) for c in cells)
-    return _window_search(occ, window, outside, centre, radius, fixed, obstacles, done,
-                          priority, budget, memo, ("advance", far), lambda: not refused,
-                          keep_found=False)
-
-
-def _window_search(occ: set[Coord], window: set[Coord], outside: set[Coord], centre: Coord,
-                   radius: int, fixed: Coord, obstacles: set[Coord],
-                   is_goal: Callable[[frozenset[Coord]], bool],
-                   priority: Callable[[int, frozenset[Coord]], int], budget: int,
-                   memo: dict[tuple, Path | None] | None, tag: tuple,
-                   exact: Callable[[], bool] = lambda: True, keep_found: bool = True
-                   ) -> Path | None:
-    """Best-first search (:func:`planner_svc.search.best_first`) for rotations inside
-    ``window``, the disk of ``radius`` around ``centre``, with ``outside`` still.
-
-    Such a search is decided by the cells within two of the window (rotations look no
-    further), how the still part's components meet the window (cut tests), the budget,
-    and what the caller's ``tag`` adds (its goal near the window being fixed, or decided by
-    the cells there). Outcomes are kept in ``memo`` under that key and not searched
-    again: failures unless ``exact()`` says the search looked beyond the key, paths if
-    ``keep_found``. Runs tried the same windows again after every success elsewhere,
-    and on scrambled blobs of 1000 modules failed searches, most of them repeats, took
-    three quarters of the time."""
-    components = _still_components(window, outside)
-    key = None
-    if memo is not None:
-        near = frozenset(c for c in disk(centre, radius + 2) if c in occ)
-        meets = frozenset(Counter(frozenset(port) for port in components[1] if port).items())
-        key = (centre, radius, budget, near, meets, *tag)
-        if key in memo:
-            kept = memo[key]
-            return None if kept is None else list(kept)
-    found, _ = best_first(frozenset(occ & window),
-                          window_moves(window, outside, fixed, obstacles, components),
-                          is_goal, priority, budget)
-    path = None if found is None else [(m, rule) for _, m, rule in found]
-    if key is not None and (exact() if path is None else keep_found):
-        memo[key] = None if path is None else list(path)
-    return path
 
 
 def _finish_small(plan: Plan, occ: set[Coord], exact_limit: int) -> None:

@@ -25,7 +25,6 @@ offsets are derived at import time from :mod:`bus.lattice` (no table is re-typed
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass, field
 from typing import Callable, Collection, Iterable, Iterator, Sequence
 

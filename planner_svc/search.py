@@ -26,11 +26,11 @@ from bus.lattice import Cell
 
 from .bounds import assignment_cost
 from .plan import Plan
-from .rules import RULE_OFFSETS, Coord, _legal_xy, to_move, xy
+from .moves import GOAL_OFFSET
+from .rules import Coord, _legal_xy, to_move, xy
 
 DEFAULT_MARGIN = 3
 DEFAULT_MAX_CONFIGURATIONS = 200_000
-_GOAL_OFFSET = {r: go for r, _, _, go in RULE_OFFSETS}
 
 
 def region_around(cells: set[Coord], margin: int) -> set[Coord]:
@@ -110,7 +110,7 @@ def search_moves(start: frozenset[Coord], goal: frozenset[Coord], fixed: Coord,
     def successors(conf: frozenset[Coord]):
         occ = set(conf)
         for _, m, rule in _legal_xy(occ, fixed, obstacles):
-            go = _GOAL_OFFSET[rule]
+            go = GOAL_OFFSET[rule]
             dest = (m[0] + go[0], m[1] + go[1])
             if dest in region:
                 yield m, rule, frozenset(occ - {m} | {dest})

@@ -38,10 +38,11 @@ import random
 from typing import Iterable
 
 from .bounds import assignment_cost
-from .complete import disk, is_cut, lone_steps, window_moves
+from .moves import disk, is_cut, lone_steps
 from .plan import Plan
 from .rules import Coord, Move, MoveRule, to_move, xy
 from .search import best_first
+from .windows import window_moves
 
 #: Moves a round trip may span (the moves in between are rechecked).
 RETURN_SPAN = 2000

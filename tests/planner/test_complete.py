@@ -6,7 +6,7 @@ import random
 
 import pytest
 
-from planner_svc import complete, planners
+from planner_svc import complete, planners, windows
 from planner_svc.bounds import (assignment_lower_bound, random_blob, random_convex_problem,
                                 random_hex_convex, random_problem, random_scrambled_problem,
                                 random_sparse_problem, random_sparse_tree, scramble,
@@ -67,7 +67,7 @@ def test_window_cut_test_agrees_with_the_plain_one():
             window = set(complete.disk(rng.choice(sorted(cells)), 3))
             outside = cells - window
             conf = frozenset((cells & window) ^ {c for c in window if rng.random() < 0.15})
-            cut = complete._window_cuts(window, outside)
+            cut = windows._window_cuts(window, outside)
             full = outside | conf
             for m in conf:
                 assert cut(conf, full, m) == complete.is_cut(full, m), m
@@ -554,7 +554,7 @@ def test_local_advance_plans_are_legal_and_bring_electrons_nearer():
         validate(steps, occ, None, (0, 0))              # every rotation legal, connected
         assert cur & goal == occ & goal                 # no goal cell emptied
         (moved,) = cur - goal
-        assert dist(moved) <= dist(e) - complete.ADVANCE_GAIN
+        assert dist(moved) <= dist(e) - windows.ADVANCE_GAIN
         found += 1
     assert found >= 10
 
@@ -779,7 +779,7 @@ def test_window_successors_match_a_search_from_scratch():
     for cells in _blobs(3, [120]):
         window = set(complete.disk(rng.choice(sorted(cells)), 3))
         outside = cells - window
-        successors = complete.window_moves(window, outside, (0, 0), set())
+        successors = windows.window_moves(window, outside, (0, 0), set())
 
         def scratch(conf):
             full = outside | conf

@@ -7,6 +7,7 @@ from bus.scenario import load
 
 from planner_svc import complete, planners, search, shorten
 from planner_svc.bounds import random_problem, random_scrambled_problem
+from planner_svc.moves import GOAL_OFFSET
 from planner_svc.plan import JOULES_PER_MOVE, Plan, Problem, validate
 from planner_svc.planners import as_problem
 from planner_svc.rules import _legal_xy, xy
@@ -78,7 +79,7 @@ def test_exact_estimates_the_assignment_bound_and_stays_fewest_moves():
 
         def successors(conf):
             for _, m, rule in _legal_xy(set(conf), xy(p.fixed), set()):
-                dest = (m[0] + search._GOAL_OFFSET[rule][0], m[1] + search._GOAL_OFFSET[rule][1])
+                dest = (m[0] + GOAL_OFFSET[rule][0], m[1] + GOAL_OFFSET[rule][1])
                 if dest in region:
                     yield m, rule, conf - {m} | {dest}
         plain, _ = search.best_first(start, successors, lambda c: c == goal,

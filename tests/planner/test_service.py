@@ -5,7 +5,6 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -36,7 +35,7 @@ def test_run_reaches_the_goal(capsys, scenario, planner, moves):
     assert last.startswith(f"{planner}: goal reached")
     assert moves is None or f"moves {moves} " in last
     assert "localized 6 of 6 modules in 3 Localize step(s)" in out  # bring-up over the bus
-    assert f"goal 6/6" in out
+    assert "goal 6/6" in out
 
 
 def test_run_says_why_the_thesis_planner_stalls(capsys):

@@ -18,7 +18,6 @@ from rerun.chunk import RrdReader
 
 from bus.cli import main
 from bus.clock import VirtualClock
-from bus.keys import board_endpoint
 from bus.scenario import load
 from bus.session import SessionOptions
 from bus.transport import Bus
