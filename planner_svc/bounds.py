@@ -112,7 +112,7 @@ def min_cost_assignment(cost: np.ndarray | list[list[int]]) -> tuple[np.ndarray,
     return col_of_row, float(c[np.arange(n), col_of_row].sum())
 
 
-def _augment(row_of_col, way, j0: int) -> None:
+def _augment(row_of_col: np.ndarray | list[int], way: np.ndarray | list[int], j0: int) -> None:
     """Flip the augmenting path that ends at column ``j0`` (1-based, as ``way``)."""
     while j0:
         j1 = way[j0]
@@ -120,7 +120,7 @@ def _augment(row_of_col, way, j0: int) -> None:
         j0 = j1
 
 
-def _columns(row_of_col) -> list[int]:
+def _columns(row_of_col: np.ndarray | list[int]) -> list[int]:
     """The column of each row, from the 1-based row of each column."""
     col = [0] * (len(row_of_col) - 1)
     for j in range(1, len(row_of_col)):
