@@ -802,7 +802,7 @@ def plan_complete(plan: Plan, exact_limit: int = EXACT_LIMIT) -> None:
     :data:`FEWEST_BUDGET` configurations) and takes it if there is one.
     """
     if not _plan_phases(plan, exact_limit):
-        _shorten(plan, windows=True)
+        shorten(plan, windows=True)
     small = len(plan.problem.goal) <= FEWEST_LIMIT
     if plan.ok and small and all(len(step) == 1 for step in plan.steps):
         _fewest(plan)
@@ -825,15 +825,11 @@ def _fewest(plan: Plan) -> None:
                           "moves")
 
 
-def _shorten(plan: Plan, windows: bool = False) -> int:
-    return shorten(plan, windows)
-
-
 def _shortened_difference(a: Plan, b: Plan) -> int:
     """Moves of ``a`` minus those of ``b``, both shortened first: candidate plans are
     compared as they will be played."""
-    _shorten(a)
-    _shorten(b)
+    shorten(a)
+    shorten(b)
     return a.moves - b.moves
 
 
@@ -944,7 +940,7 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
             tries.append((smoothed, SMOOTHED_NOTE))
         done = [(t, note) for t, note in tries if t.ok]
         for t, _ in done:       # compared as they will be played; shortened here, the
-            _shorten(t)         # plan's notes say so before saying where it comes from
+            shorten(t)          # plan's notes say so before saying where it comes from
         if done:
             best, note = min(done, key=lambda tn: tn[0].moves)     # ties: the first
             plan.steps, plan.ok = best.steps, True

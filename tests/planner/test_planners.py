@@ -109,7 +109,7 @@ def test_complete_takes_the_fewest_moves_on_small_fleets_when_the_search_finds_t
         "exact search: no plan within 3 cells of start and goal has fewer than these 12 moves")
     heuristic = Plan("complete", as_problem(load("thesis-12")))
     complete._plan_phases(heuristic, complete.EXACT_LIMIT)
-    complete._shorten(heuristic)
+    shorten.shorten(heuristic)
     assert heuristic.moves == 19
     assert search.fewer_moves(heuristic, max_configurations=100) is None and heuristic.moves == 19
     assert search.fewer_moves(heuristic) is True and heuristic.moves == 18
