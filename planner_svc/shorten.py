@@ -228,11 +228,7 @@ def replan_windows(initial: set[Coord], hops: list[Hop], fixed: Coord,
         new = None
         if len(inside) >= 2 and not set(inside) <= failed:
             start = frozenset(occ & window)
-            end = set(start)
-            for j in inside:
-                end.discard(hops[j][0])
-                end.add(hops[j][1])
-            target = frozenset(end)
+            target = frozenset(_moved(start, [hops[j] for j in inside]))
             if estimate(start, target) < len(inside):
                 found, expanded = best_first(
                     start, window_moves(window, occ - window, fixed, obstacles),
@@ -259,7 +255,8 @@ def replan_windows(initial: set[Coord], hops: list[Hop], fixed: Coord,
     return hops, allowance
 
 
-def _moved(occ: set[Coord], hops: list[Hop]) -> set[Coord]:
+def _moved(occ: set[Coord] | frozenset[Coord], hops: list[Hop]) -> set[Coord]:
+    """``occ`` after ``hops`` (a copy)."""
     out = set(occ)
     for a, b in hops:
         out.discard(a)
