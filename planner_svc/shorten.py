@@ -25,7 +25,11 @@ plan), re-plans the plan piece by piece:
   window's own assignment bound as the estimate, :func:`planner_svc.search.best_first`,
   the rest of the structure still); the other moves follow, and must still be legal.
   Relays, digs and walks that each look right leave such knots: three modules shuffle
-  where two moves would do. (Scrambled blobs of 1000 modules: 17-29% fewer moves.)
+  where two moves would do. The second round re-plans the plan played backwards (every
+  rotation is reversible): its windows are centred where stretches end rather than where
+  they start, and meet knots a second forward round would not (scrambled blobs of 1000
+  modules: 20-32% fewer moves in all, 1-4% more than two rounds forwards in the same
+  time).
 
 The result is rebuilt move by move on the configuration of its time (the joints a move
 releases depend on who is next to it then) and checked as it is built; should any move
@@ -50,7 +54,7 @@ RETURN_SPAN = 2000
 #: rounds repeat until one changes nothing (Eden blobs: 2-3 rounds).
 ROUNDS = 100
 #: Window re-planning (:func:`replan_windows`): the windows' radii, tried in turn; rounds
-#: of all three at most; the configurations the search of one window may expand; and
+#: of all three at most (forwards, backwards, ...); the configurations the search of one window may expand; and
 #: those all windows of one plan may expand together. Each buys moves with time: on
 #: scrambled blobs of 1000 modules 3000 per window and rounds until nothing changes save
 #: 5% more in two to three times the time (4-7 s more); on Eden 1000 an allowance of
@@ -63,6 +67,8 @@ WINDOWS_ALLOWANCE = 60_000
 WINDOWS_NOTE = "re-planned in windows"
 
 Hop = tuple[Coord, Coord]
+#: Assignment bounds of window searches: (cells too many, cells too few) -> bound.
+Estimates = dict[tuple[frozenset[Coord], frozenset[Coord]], int]
 
 
 def legal(occ: set[Coord], m: Coord, g: Coord, fixed: Coord,
@@ -192,13 +198,16 @@ def _still_legal(occ: set[Coord], hops: Iterable[Hop], fixed: Coord,
 
 def replan_windows(initial: set[Coord], hops: list[Hop], fixed: Coord,
                    obstacles: set[Coord] | frozenset[Coord], radius: int,
-                   allowance: int) -> tuple[list[Hop], int]:
+                   allowance: int, estimates: Estimates | None = None
+                   ) -> tuple[list[Hop], int]:
     """``hops`` with stretches re-planned in windows of ``radius`` (see the module
     docstring), and what is left of ``allowance`` (configurations the searches may
-    expand)."""
+    expand). ``estimates`` keeps the searches' assignment bounds between calls (the
+    rounds and radii of one plan meet the same windows again: half their bounds)."""
     hops = list(hops)
     occ = set(initial)                  # the configuration before hops[i]
-    estimates: dict[tuple[frozenset[Coord], frozenset[Coord]], int] = {}
+    if estimates is None:
+        estimates = {}
 
     def estimate(conf: frozenset[Coord], target: frozenset[Coord]) -> int:
         key = (conf - target, target - conf)
@@ -294,17 +303,7 @@ def shorten(plan: Plan, windows: bool = False) -> int:
     hops = _drop_detours(initial, hops, fixed, obstacles)
     dropped = len(hops)
     if windows:
-        allowance = WINDOWS_ALLOWANCE
-        for _ in range(WINDOW_ROUNDS):
-            n = len(hops)
-            for radius in WINDOW_RADII:
-                m = len(hops)
-                hops, allowance = replan_windows(initial, hops, fixed, obstacles, radius,
-                                                 allowance)
-                if len(hops) < m:
-                    hops = _drop_detours(initial, hops, fixed, obstacles)
-            if len(hops) == n or allowance <= 0:
-                break
+        hops = _replan_rounds(initial, hops, fixed, obstacles)
     if len(hops) == before:
         return 0
     steps = rebuild(initial, hops, fixed, obstacles)
@@ -321,6 +320,39 @@ def shorten(plan: Plan, windows: bool = False) -> int:
                           f"(stretches of moves inside disks of radius {radii} replaced by "
                           "the fewest rotations inside, found by A* search)")
     return before - len(hops)
+
+
+def _replan_rounds(initial: set[Coord], hops: list[Hop], fixed: Coord,
+                   obstacles: set[Coord] | frozenset[Coord]) -> list[Hop]:
+    """Rounds of window re-planning (every radius in turn, detours dropped after each
+    that saved moves), every other round on the plan played backwards.
+
+    Backwards, a window starts at the plan's later moves and collects the earlier ones,
+    so it meets other stretches: a round backwards saves more than a second round
+    forwards, in the same time."""
+    allowance = WINDOWS_ALLOWANCE
+    final = _moved(initial, hops)
+    for round_ in range(WINDOW_ROUNDS):
+        n = len(hops)
+        backwards = round_ % 2 == 1
+        start, seq = (final, _reversed(hops)) if backwards else (initial, hops)
+        estimates: Estimates = {}
+        for radius in WINDOW_RADII:
+            m = len(seq)
+            seq, allowance = replan_windows(start, seq, fixed, obstacles, radius,
+                                            allowance, estimates)
+            if len(seq) < m:
+                seq = _drop_detours(start, seq, fixed, obstacles)
+        hops = _reversed(seq) if backwards else seq
+        if (len(hops) == n and round_ > 0) or allowance <= 0:
+            break
+    return hops
+
+
+def _reversed(hops: list[Hop]) -> list[Hop]:
+    """The plan played backwards: every rotation undone, last first (a rotation's
+    reverse pivots about the same neighbour and sweeps the same cells)."""
+    return [(b, a) for a, b in reversed(hops)]
 
 
 def _drop_detours(initial: set[Coord], hops: list[Hop], fixed: Coord,

@@ -212,3 +212,50 @@ def test_a_window_skips_moves_far_from_it_and_plays_them_after_its_own():
     steps = rebuild(start, new, (20, 0), frozenset())
     assert steps is not None
     validate(steps, [*start], [*occ], (20, 0))
+
+
+def test_a_round_played_backwards_replans_what_forward_rounds_leave():
+    # Forwards, a window is centred where a stretch starts; backwards, where it ends. On
+    # these two random walks, windows forwards until nothing changes leave knots that
+    # windows on the plan played backwards still find; the result, played forwards
+    # again, is legal and ends in place.
+    saved = 0
+    for seed in (8, 18):
+        plan = _random_walk_plan(30, 120, seed)
+        shorten(plan)
+        start, end = {xy(c) for c in plan.problem.initial}, _end(plan)
+        hops = [(xy(s[0].mobile), xy(s[0].goal)) for s in plan.steps]
+        while True:
+            n = len(hops)
+            for radius in shorten_module.WINDOW_RADII:
+                hops, _ = shorten_module.replan_windows(start, hops, (0, 0), frozenset(),
+                                                        radius, 10 ** 6)
+            if len(hops) == n:
+                break
+        back = shorten_module._reversed(hops)
+        for radius in shorten_module.WINDOW_RADII:
+            back, _ = shorten_module.replan_windows(end, back, (0, 0), frozenset(), radius,
+                                                    10 ** 6)
+        again = shorten_module._reversed(back)
+        steps = rebuild(start, again, (0, 0), frozenset())
+        assert steps is not None
+        validate(steps, [*start], [*end], (0, 0))
+        saved += len(hops) - len(again)
+    assert saved >= 5                                   # 34 -> 31, 36 -> 32
+
+
+def test_window_rounds_alternate_direction(monkeypatch):
+    # shorten's rounds: forwards, then backwards (each on the last round's result).
+    seen = []
+    real = shorten_module.replan_windows
+
+    def spy(initial, hops, *args):
+        seen.append(frozenset(initial))
+        return real(initial, hops, *args)
+    monkeypatch.setattr(shorten_module, "replan_windows", spy)
+    plan = _random_walk_plan(30, 120, 8)
+    start, end = {xy(c) for c in plan.problem.initial}, _end(plan)
+    shorten(plan, windows=True)
+    validate(plan)
+    radii = len(shorten_module.WINDOW_RADII)
+    assert seen[:2 * radii] == [start] * radii + [end] * radii
