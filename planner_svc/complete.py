@@ -28,6 +28,16 @@ is stuck, also from where phase 1 stopped. Fleets of :data:`COMPARE_LIMIT` modul
 fewer run every phase. Candidates are compared as they will be played: shortened by
 :mod:`planner_svc.shorten` (detours dropped).
 
+Before the relays, fleets of more than :data:`SMOOTH_LIMIT` modules whose assignment
+bound is at most :data:`DESCENT_REACH` moves per electron (a local rearrangement, as
+the scrambled blobs: 2-3) *descend the bound* (:mod:`planner_svc.descent`): moves that
+each lower the assignment bound by one, none sealing a void or freezing an electron,
+and short window searches where no move does; the relays go on from where it stops.
+When they reach the goal that plan is kept (scrambled blobs of 1000 modules, seeds
+0-19: on 6, e.g. seed 0 343 moves instead of 423 and seed 9 410 instead of 1384); if
+not, everything below runs from the start, and the last resort also digs on from
+there.
+
 Under Table 4-3 a lone walker cannot cross a
 notch of the surface (a free cell with four occupied neighbours: no rotation pivots
 across its mouth), so on a rough structure each module reaches only a short stretch
@@ -124,8 +134,8 @@ unreachability.
 
 The plan kept is shortened once more and re-planned in small windows
 (:func:`planner_svc.shorten.replan_windows`: stretches of moves inside a disk of radius
-2-4 replaced by the fewest rotations there; scrambled blobs of 1000 modules: 17-29%
-fewer moves, for up to 13 s). Last, on fleets of :data:`FEWEST_LIMIT` modules or fewer, the
+2-4 replaced by the fewest rotations there, every other round on the plan played
+backwards; scrambled blobs of 1000 modules: 19-32% fewer moves, for up to 13 s). Last, on fleets of :data:`FEWEST_LIMIT` modules or fewer, the
 exact search looks for a plan with fewer moves than that
 (:func:`planner_svc.search.fewer_moves`, at most :data:`FEWEST_BUDGET` configurations,
 stopping as soon as none can be shorter): the benchmark's Eden and scrambled instances
@@ -144,12 +154,14 @@ from typing import Callable, Iterable, Iterator
 
 from bus.lattice import NEIGHBOUR_OFFSET, Cell, Side
 
+from .descent import descend
 from .bounds import (assignment_lower_bound, distance_matrix, electron_void_assignment,
                      min_cost_assignment)
 from .plan import Plan, Problem
 from .rules import (RULE_OFFSETS, SIDE_OFFSETS, Coord, Move, MoveRule, find_move,
                     hex_distance, is_connected, neighbours_xy, to_move, xy)
-from .moves import GOAL_OFFSET, Path, bfs, can_move, disk, is_cut, lone_steps, ring2, walk
+from .moves import (GOAL_OFFSET, Path, bfs, can_move, disk, enterable, is_cut, lone_steps,
+                    ring2, walk)
 from .search import DEFAULT_MARGIN, fewer_moves, search_from
 from .shorten import shorten
 from .windows import (FAR, local_advance, local_exchange, local_repair, surface_distance,
@@ -163,6 +175,9 @@ EXACT_BUDGET = 200_000
 #: most FEWEST_BUDGET configurations (thesis-12: 19 moves become 18, in 1720).
 FEWEST_LIMIT = 12
 FEWEST_BUDGET = 2500
+#: Large fleets descend the bound first (:mod:`planner_svc.descent`) when it is at most
+#: this many moves per electron.
+DESCENT_REACH = 4
 #: Chain cost added per void that a fill would make unenterable.
 UNSAFE_PENALTY = 1000
 #: Chain cost taken off per unit of void depth (deep voids first, they seal soonest).
@@ -236,25 +251,6 @@ SMOOTH_WINDOW = (3, 1500)
 MAX_MOVES_PER_MODULE = 60
 
 # --- fill order ------------------------------------------------------------------------------
-def enterable(settled: set[Coord], void: Coord, obstacles: frozenset[Coord] | set[Coord] = frozenset()
-              ) -> bool:
-    """Whether a void can still be entered once its neighbours stop moving.
-
-    Table 4-3: some row must bring a walker from a free neighbour into ``void`` about
-    an occupied substrate with the row's three swept cells free.
-    """
-    vx, vy = void
-    for _, (sx, sy), empties, (gx, gy) in RULE_OFFSETS:
-        mx, my = vx - gx, vy - gy
-        if (mx, my) in settled or (mx, my) in obstacles or (mx + sx, my + sy) not in settled:
-            continue
-        if any((mx + ex, my + ey) in settled or (mx + ex, my + ey) in obstacles
-               for ex, ey in empties):
-            continue
-        return True
-    return False
-
-
 def goal_depth(goal: set[Coord]) -> dict[Coord, int]:
     """Distance of each goal cell from the nearest cell outside the goal.
 
@@ -786,6 +782,33 @@ def compact(goal: set[Coord]) -> bool:
     return bool(goal) and links >= COMPACT_DEGREE * len(goal)
 
 
+def _local(p: Problem) -> bool:
+    """Whether the assignment bound per electron is at most :data:`DESCENT_REACH`: each
+    void is a few cells from its electron, as on scrambled blobs (2-3 cells; Eden blobs
+    8-20, where bound descent spends its allowance and stops)."""
+    occ, goal = {xy(c) for c in p.initial}, {xy(c) for c in p.goal}
+    electrons = len(occ - goal)
+    return electrons > 0 and assignment_lower_bound(occ, goal) <= DESCENT_REACH * electrons
+
+
+def _descended(planner: str, p: Problem, advance: bool) -> _Heuristic:
+    """Bound descent (:func:`planner_svc.descent.descend`), then the relays from where it
+    stopped (returned: their plan is ok if they reached the goal; if not, the last resort
+    may dig on from there)."""
+    occ = {xy(c) for c in p.initial}
+    path, escapes = descend(occ, {xy(c) for c in p.goal}, xy(p.fixed),
+                            {xy(c) for c in p.obstacles})
+    plan = Plan(planner, p)
+    plan.steps = play({xy(c) for c in p.initial}, path)
+    escaped = sum(n for _, n in escapes)
+    plan.notes.append(f"bound descent: {len(path)} moves, {len(path) - escaped} of them each "
+                      f"lowering the assignment bound by one, {escaped} in {len(escapes)} "
+                      "window escapes; relays from there")
+    relays = _Heuristic(plan, start=occ, advance=advance)
+    relays.run()
+    return relays
+
+
 def plan_complete(plan: Plan, exact_limit: int = EXACT_LIMIT) -> None:
     """Fill ``plan`` (serial, one move per step); see the module docstring.
 
@@ -858,6 +881,7 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
     _AssignWalk(first, occ).run()
     walked = occ == goal
     relays: _Heuristic | None = None
+    descent: _Heuristic | None = None
     walled = False
     if walked:
         first.ok = True
@@ -868,6 +892,15 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
             if relay.ok and _shortened_difference(relay, first) < 0:
                 forward = relay
     else:
+        # Large fleets whose voids are near their electrons (a local rearrangement)
+        # descend the bound first; where that and relays from where it stopped reach
+        # the goal, the plan is kept.
+        if len(goal) > SMOOTH_LIMIT and _local(p):
+            descent = _descended(plan.planner, p, advance)
+            if descent.plan.ok:
+                plan.steps, plan.ok = descent.plan.steps, True
+                plan.notes += descent.plan.notes
+                return False
         forward = Plan(plan.planner, p)
         relays = _Heuristic(forward, advance=advance)
         relays.run()
@@ -927,6 +960,11 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
             dug = Plan(plan.planner, p)
             relays.dig_on(dug, calls)
             tries.append((dug, DUG_NOTE))
+            if descent is not None:
+                dug = Plan(plan.planner, p)
+                dug.notes = list(descent.plan.notes)
+                descent.dig_on(dug, calls)
+                tries.append((dug, DESCENT_DUG_NOTE))
             if large:
                 pinned = _Heuristic(Plan(plan.planner, p), advance=advance, pins=True)
                 pinned.run()
@@ -961,6 +999,7 @@ DUG_NOTE = "relays stuck; holes dug open and refilled"
 SMOOTHED_NOTE = ("relays stuck; start and goal smoothed (notches filled), holes dug open and "
                  "refilled")
 PINNED_NOTE = "relays stuck; run again with pinned electrons first"
+DESCENT_DUG_NOTE = "relays stuck; holes dug open and refilled from where bound descent stopped"
 
 
 def reverse_steps(plan: Plan, problem: Problem) -> list[list[Move]]:

@@ -2,11 +2,12 @@
 
 A module may rotate when the rest of the structure stays connected without it (it is
 no cut vertex) and a Table 4-3 row has its substrate there and its goal and sweep cells
-free (:func:`lone_steps`, from a table of the six neighbours' patterns). Walks chain
-such rotations with the rest still: breadth-first (:func:`bfs`, every cell a walker
-reaches) or A* (:func:`walk`). ``complete``'s phases, its window searches
-(:mod:`planner_svc.windows`) and plan shortening (:mod:`planner_svc.shorten`) all use
-these.
+free (:func:`lone_steps`, from a table of the six neighbours' patterns); a void can be
+entered while some row can bring a walker in (:func:`enterable`). Walks chain such
+rotations with the rest still: breadth-first (:func:`bfs`, every cell a walker reaches)
+or A* (:func:`walk`). ``complete``'s phases, its window searches
+(:mod:`planner_svc.windows`), bound descent (:mod:`planner_svc.descent`) and plan
+shortening (:mod:`planner_svc.shorten`) all use these.
 """
 
 from __future__ import annotations
@@ -114,6 +115,25 @@ def _arcs_meet(occ: set[Coord], c: Coord, starts: list[Coord]) -> bool:
 def can_move(occ: set[Coord], c: Coord, obstacles: set[Coord]) -> bool:
     """Whether the module at ``c`` has at least one legal rotation (ignoring connectivity)."""
     return next(lone_steps(occ, c, obstacles), None) is not None
+
+
+def enterable(settled: set[Coord], void: Coord, obstacles: frozenset[Coord] | set[Coord] = frozenset()
+              ) -> bool:
+    """Whether a void can still be entered once its neighbours stop moving.
+
+    Table 4-3: some row must bring a walker from a free neighbour into ``void`` about
+    an occupied substrate with the row's three swept cells free.
+    """
+    vx, vy = void
+    for _, (sx, sy), empties, (gx, gy) in RULE_OFFSETS:
+        mx, my = vx - gx, vy - gy
+        if (mx, my) in settled or (mx, my) in obstacles or (mx + sx, my + sy) not in settled:
+            continue
+        if any((mx + ex, my + ey) in settled or (mx + ex, my + ey) in obstacles
+               for ex, ey in empties):
+            continue
+        return True
+    return False
 
 
 # --- walks ---------------------------------------------------------------------------------

@@ -704,6 +704,7 @@ def test_relays_that_wall_voids_in_go_straight_to_digging(monkeypatch, few_voids
     # and the last resort still reaches the goal. With more allowed, both run.
     monkeypatch.setattr(complete, "SMOOTH_LIMIT", 10)
     monkeypatch.setattr(complete, "FEW_VOIDS", few_voids)
+    monkeypatch.setattr(complete, "_local", lambda problem: False)     # no bound descent
     p = random_problem(20, 7)
     runs = []
     init = complete._Heuristic.__init__
@@ -752,6 +753,7 @@ def test_the_last_resort_also_digs_from_relays_run_with_pinned_electrons_first(m
     # Eden 30 seed 76, counted as a large fleet: every relay run stops; run again with
     # pinned electrons first, the relays finish, in fewer moves than any plan without.
     monkeypatch.setattr(complete, "SMOOTH_LIMIT", 10)
+    monkeypatch.setattr(complete, "_local", lambda problem: False)     # no bound descent
     p = random_problem(30, 76)
     plans = []
     for pins in (True, False):

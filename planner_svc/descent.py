@@ -1,0 +1,293 @@
+"""Bound descent: moves that each lower the assignment bound, and window searches where
+none does.
+
+The assignment bound (:func:`planner_svc.bounds.assignment_lower_bound`) changes by at
+most one per move, since a move carries one module one cell. A plan whose every move
+lowers it has exactly the bound's length; the bound's excess is what the other moves
+cost. :func:`descend` builds such a plan from an optimal electron -> void assignment
+(:class:`Assignment`), kept up to date move by move:
+
+* **descending moves**: an electron steps nearer its void or into a void; a settled
+  module steps into a void whose electron is nearer its cell (the electron will take
+  that cell: a relay); or a settled module on a shortest line between an electron and
+  its void steps out, the electron taking its cell and the module the void. Moves that
+  make a void nearby unenterable (:func:`planner_svc.moves.enterable`) or freeze an
+  electron that could move are never made: they are the walls the relays otherwise
+  dig through.
+* **escapes** (enforced hill climbing): when no move descends, a best-first search in a
+  window around each electron and void (:func:`planner_svc.windows._window_search`)
+  looks for the fewest rotations after which the bound of the pairs that meet the window
+  is lower, by the same rules (no void near the window left unenterable, no electron
+  frozen); the shortest one found is made, and the descent goes on. Only when no window
+  has such an escape may one break those rules (without that second chance, the
+  descent stopped with 12-21 voids left, where the relays did worse).
+
+It stops when the goal is reached, when no window finds an escape, or when its search
+allowance is spent. ``complete`` runs it first on large fleets and lets the relays finish
+from where it stopped (scrambled blobs of 1000 modules: where that finishes, plans about
+1.5x the bound once re-planned in windows, instead of 1.9x).
+"""
+
+from __future__ import annotations
+
+from .bounds import assignment_cost, electron_void_assignment
+from .moves import GOAL_OFFSET, Path, can_move, disk, enterable, is_cut, lone_steps, ring2
+from .rules import Coord, MoveRule, hex_distance, neighbours_xy
+from .shorten import _still_legal
+from .windows import _window_search
+
+#: Window of an escape search: radius around an electron or void, and configurations
+#: expanded per window.
+ESCAPE_RADIUS = 3
+ESCAPE_BUDGET = 300
+#: An escape this short is taken at once (the windows are searched shortest pairs first).
+ESCAPE_ENOUGH = 2
+#: Configurations all escape searches of one descent may expand (Eden blobs, whose
+#: electrons are many and far from their voids, spend it and stop).
+DESCENT_ALLOWANCE = 200_000
+#: Pairs at most this far apart are looked at for settled modules stepping out of their
+#: line (cells on a shortest line between them: a pair's parallelogram).
+LINE_LIMIT = 8
+
+
+class Assignment:
+    """An optimal assignment of electrons to voids by hex distance, and its cost (the
+    assignment bound), updated in place by :meth:`apply` after each descending move."""
+
+    def __init__(self, occ: set[Coord], goal: set[Coord]) -> None:
+        electrons, voids = sorted(occ - goal), sorted(goal - occ)
+        self.goal = goal
+        self.void_of: dict[Coord, Coord] = {}
+        self.cost = 0
+        if electrons:
+            col, total = electron_void_assignment(electrons, voids)
+            self.void_of = {e: voids[int(j)] for e, j in zip(electrons, col)}
+            self.cost = int(round(total))
+        self.electron_of = {v: e for e, v in self.void_of.items()}
+
+    def change(self, m: Coord, b: Coord) -> tuple[int, Coord | None]:
+        """How moving the module at ``m`` to the free cell ``b`` changes the cost of an
+        assignment made from this one by the cheapest single exchange, and the electron
+        that exchange reassigns (None if none). A change of -1 is the most any move can
+        do, so such an assignment is optimal again."""
+        d = hex_distance
+        if m not in self.goal:                          # an electron moves
+            s = self.void_of[m]
+            if b not in self.goal or b == s:
+                return d(b, s) - d(m, s), None
+            other = self.electron_of[b]                 # it takes another's void
+            return d(other, s) - d(other, b) - d(m, s), other
+        if b in self.goal:                              # a settled module fills a void
+            other = self.electron_of[b]
+            return d(other, m) - d(other, b), other
+        # A settled module steps out: the new electron b and void m pair up, or some
+        # electron takes m and b takes that electron's void.
+        best, who = 1, None
+        for e, s in self.void_of.items():
+            delta = d(e, m) + d(b, s) - d(e, s)
+            if delta < best:
+                best, who = delta, e
+        return best, who
+
+    def apply(self, m: Coord, b: Coord, change: tuple[int, Coord | None]) -> None:
+        """Move the module at ``m`` to ``b``, with the exchange :meth:`change` found."""
+        void_of, electron_of, goal = self.void_of, self.electron_of, self.goal
+        delta, other = change
+        if m not in goal:
+            s = void_of.pop(m)
+            del electron_of[s]
+            if b not in goal:
+                void_of[b], electron_of[s] = s, b
+            elif b != s:
+                del electron_of[b]
+                void_of[other], electron_of[s] = s, other
+        elif b in goal:
+            del electron_of[b]
+            void_of[other], electron_of[m] = m, other
+        elif other is None:
+            void_of[b], electron_of[m] = m, b
+        else:
+            s = void_of[other]
+            void_of[other], electron_of[m] = m, other
+            void_of[b], electron_of[s] = s, b
+        self.cost += delta
+
+
+def descend(occ: set[Coord], goal: set[Coord], fixed: Coord,
+            obstacles: set[Coord] | frozenset[Coord] = frozenset(),
+            allowance: int = DESCENT_ALLOWANCE) -> tuple[Path, list[tuple[int, int]]]:
+    """Descending moves and escapes from ``occ`` (changed in place) towards ``goal``;
+    returns the rotations made and where the escapes are among them (``(first move,
+    moves)`` each; every other move lowers the bound by one). ``occ`` equals ``goal``
+    afterwards when the descent finished (see the module docstring)."""
+    path: Path = []
+    escapes: list[tuple[int, int]] = []
+    memo: dict[tuple, Path | None] = {}
+    obstacles = set(obstacles)
+    bound = Assignment(occ, goal)
+    while bound.void_of:
+        step = _descending_move(occ, goal, fixed, obstacles, bound)
+        if step is not None:
+            m, rule, b, change = step
+            bound.apply(m, b, change)
+            occ.discard(m)
+            occ.add(b)
+            path.append((m, rule))
+            continue
+        found, allowance = _escape(occ, goal, fixed, obstacles, bound, memo, allowance)
+        if found is None:
+            found, allowance = _escape(occ, goal, fixed, obstacles, bound, memo, allowance, False)
+        if found is None:
+            break
+        for m, rule in found:
+            ox, oy = GOAL_OFFSET[rule]
+            occ.discard(m)
+            occ.add((m[0] + ox, m[1] + oy))
+        escapes.append((len(path), len(found)))
+        path += found
+        bound = Assignment(occ, goal)
+    return path, escapes
+
+
+def _descending_move(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set[Coord],
+                     bound: Assignment
+                     ) -> tuple[Coord, MoveRule, Coord, tuple[int, Coord | None]] | None:
+    """The best safe move that lowers the bound by one: electron moves first, the
+    electron farthest from its void first; then relays; then settled modules stepping
+    out. ``(mobile, rule, goal cell, its change of the bound)`` or None."""
+    best: tuple | None = None
+    for m in sorted(_candidates(occ, goal, bound)):
+        if m == fixed:
+            continue
+        steps = list(lone_steps(occ, m, obstacles))
+        if not steps or is_cut(occ, m):
+            continue
+        for rule, b in steps:
+            change = bound.change(m, b)
+            if change[0] != -1:
+                continue
+            if m not in goal:
+                rank = (0 if b not in goal or b == bound.void_of[m] else 1,
+                        -hex_distance(m, bound.void_of[m]))
+            else:
+                rank = (2 if b in goal else 3, 0)
+            if best is not None and rank >= best[0]:
+                continue
+            if _unsafe(occ, goal, m, b, obstacles):
+                continue
+            best = (rank, m, rule, b, change)
+    return None if best is None else best[1:]
+
+
+def _candidates(occ: set[Coord], goal: set[Coord], bound: Assignment) -> set[Coord]:
+    """Modules whose move might lower the bound: electrons, settled modules next to a
+    void, and settled modules on a shortest line between an electron and its void."""
+    out = set(bound.void_of)
+    for v in bound.electron_of:
+        out.update(n for n in neighbours_xy(v) if n in occ)
+    for e, v in bound.void_of.items():
+        span = hex_distance(e, v)
+        if 2 <= span <= LINE_LIMIT:
+            out.update(c for c in disk(e, span - 1)
+                       if c in occ and c in goal and hex_distance(c, v) + hex_distance(e, c) == span)
+    return out
+
+
+def _unsafe(occ: set[Coord], goal: set[Coord], m: Coord, b: Coord,
+            obstacles: set[Coord]) -> bool:
+    """Whether moving ``m`` to ``b`` leaves a void nearby unenterable that was not (the
+    cell ``m`` leaves included), or an electron nearby (``b`` included) unable to move
+    that could before."""
+    after = set(occ)
+    after.discard(m)
+    after.add(b)
+    near = {*ring2(m), *ring2(b)}
+    for w in near:
+        # A void nearby (or the cell ``m`` leaves, if a goal cell) must stay enterable.
+        if w in goal and w not in after and not enterable(after, w, obstacles) \
+                and (w == m or enterable(occ, w, obstacles)):
+            return True
+    for x in {*ring2(b), b}:
+        if (x in after and x not in goal and x != m and not can_move(after, x, obstacles)
+                and (x == b or can_move(occ, x, obstacles))):
+            return True
+    return False
+
+
+def _escape(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set[Coord],
+            bound: Assignment, memo: dict[tuple, Path | None], allowance: int,
+            careful: bool = True) -> tuple[Path | None, int]:
+    """The fewest rotations, in a window around some electron or void, after which the
+    bound of the pairs meeting the window is lower; and what is left of ``allowance``."""
+    pair_of = {**bound.void_of, **bound.electron_of}
+    centres = sorted(pair_of, key=lambda c: (hex_distance(c, pair_of[c]), c))
+    best: Path | None = None
+    for c in centres:
+        if allowance <= 0:
+            break
+        window = set(disk(c, ESCAPE_RADIUS))
+        pairs = frozenset((e, v) for e, v in bound.void_of.items()
+                          if e in window or v in window)
+        electrons_out = [e for e, _ in pairs if e not in window]
+        voids_out = [v for _, v in pairs if v not in window]
+        aim = sum(hex_distance(e, v) for e, v in pairs) - 1
+        holes = goal & window
+        # Cells a rotation in the window, and the enterability and mobility of the cells
+        # within two of it, depend on.
+        near = frozenset(x for x in disk(c, ESCAPE_RADIUS + 4) if x in occ)
+        around = near - window
+        seen: dict[frozenset[Coord], int] = {}
+
+        def local(conf: frozenset[Coord]) -> int:
+            got = seen.get(conf)
+            if got is None:
+                got = seen[conf] = assignment_cost(
+                    electrons_out + sorted(x for x in conf if x not in goal),
+                    voids_out + sorted(x for x in holes if x not in conf))
+            return got
+
+        def done(conf: frozenset[Coord], watch=disk(c, ESCAPE_RADIUS + 2)) -> bool:
+            return local(conf) <= aim and (not careful or _safe(near, around | conf, watch, goal, obstacles))
+
+        # Remembered by those cells and the pairs: most windows do not change between
+        # escapes. How the rest connects may have, so a remembered path is checked again.
+        key = (c, near, pairs, careful)
+        if key in memo:
+            found = memo[key]
+            if found is not None and not _playable(occ, found, fixed, obstacles):
+                found = None
+        else:
+            found = memo[key] = _window_search(
+                occ, window, occ - window, c, ESCAPE_RADIUS, fixed, obstacles, done,
+                lambda g, conf: g + max(0, local(conf) - aim), ESCAPE_BUDGET, None, ())
+            allowance -= len(seen)      # the configurations it priced
+        if found is not None and (best is None or len(found) < len(best)):
+            best = found
+            if len(best) <= ESCAPE_ENOUGH:
+                break
+    return best, allowance
+
+
+def _safe(before: frozenset[Coord] | set[Coord], after: frozenset[Coord] | set[Coord],
+          watch: list[Coord], goal: set[Coord], obstacles: set[Coord]) -> bool:
+    """Whether, of the cells ``watch``, every void unenterable ``after`` was an
+    unenterable void ``before``, and every electron unable to move ``after`` was one
+    ``before`` (the rules of descending moves, for a window's rotations)."""
+    for w in watch:
+        if w in after:
+            if w not in goal and not can_move(after, w, obstacles) and (
+                    w not in before or can_move(before, w, obstacles)):
+                return False
+        elif w in goal and not enterable(after, w, obstacles) and (
+                w in before or enterable(before, w, obstacles)):
+            return False
+    return True
+
+
+def _playable(occ: set[Coord], path: Path, fixed: Coord, obstacles: set[Coord]) -> bool:
+    """Whether every rotation of ``path`` is legal in turn from ``occ`` (left unchanged)."""
+    hops = []
+    for m, rule in path:
+        ox, oy = GOAL_OFFSET[rule]
+        hops.append((m, (m[0] + ox, m[1] + oy)))
+    return _still_legal(occ, hops, fixed, obstacles)

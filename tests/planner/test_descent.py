@@ -1,0 +1,86 @@
+"""Bound descent: its assignment stays optimal, its moves lower the bound, it seals no
+void, and ``complete`` uses it where voids are near their electrons."""
+
+import random
+
+from planner_svc import complete
+from planner_svc.bounds import (assignment_lower_bound, random_blob, random_problem,
+                                random_scrambled_problem, scramble)
+from planner_svc.descent import Assignment, descend
+from planner_svc.moves import GOAL_OFFSET, enterable, is_cut, lone_steps
+from planner_svc.plan import Plan, validate
+from planner_svc.rules import hex_distance, xy
+
+
+def _cells(problem):
+    return {xy(c) for c in problem.initial}, {xy(c) for c in problem.goal}
+
+
+def test_a_change_of_minus_one_leaves_an_optimal_assignment():
+    # Every legal move of a few scrambled blobs: where the cheapest exchange lowers the
+    # assignment's cost by one, the updated assignment is a true minimum (the bound of
+    # the new configuration) and pairs every electron with a distinct void.
+    checked = 0
+    for seed in range(6):
+        rng = random.Random(seed)
+        start = random_blob(40, rng)
+        goal, _ = scramble(start, 60, rng)
+        for m in sorted(start - {(0, 0)}):
+            if is_cut(start, m):
+                continue
+            for _, b in lone_steps(start, m, set()):
+                bound = Assignment(start, goal)
+                change = bound.change(m, b)
+                assert change[0] >= -1
+                if change[0] != -1:
+                    continue
+                bound.apply(m, b, change)
+                after = (start - {m}) | {b}
+                assert bound.cost == assignment_lower_bound(after, goal)
+                assert bound.cost == sum(hex_distance(e, v) for e, v in bound.void_of.items())
+                assert set(bound.void_of) == after - goal
+                assert set(bound.void_of.values()) == goal - after
+                checked += 1
+    assert checked > 20
+
+
+def test_descending_moves_lower_the_bound_and_seal_nothing():
+    # Scrambled blobs of 120 modules: the path is legal; outside the escapes every move
+    # lowers the bound by exactly one and leaves every enterable void near it enterable.
+    descending = 0
+    for seed in range(3):
+        problem = random_scrambled_problem(120, seed)
+        start, goal = _cells(problem)
+        occ = set(start)
+        path, escapes = descend(occ, goal, (0, 0))
+        inside = {i for first, n in escapes for i in range(first, first + n)}
+        cur = set(start)
+        bound = assignment_lower_bound(cur, goal)
+        for i, (m, rule) in enumerate(path):
+            ox, oy = GOAL_OFFSET[rule]
+            b = (m[0] + ox, m[1] + oy)
+            after = (cur - {m}) | {b}
+            now = assignment_lower_bound(after, goal) if after != goal else 0
+            if i not in inside:
+                assert now == bound - 1, i
+                assert not any(enterable(cur, w) and not enterable(after, w)
+                               for w in goal - after if hex_distance(w, b) <= 2)
+                descending += 1
+            cur, bound = after, now
+        assert cur == occ
+        plan = Plan("descent", problem)
+        plan.steps = complete.play(set(start), path)
+        assert not plan.ok and {xy(c) for c in validate(plan)} == occ    # every move legal
+    assert descending > 60
+
+
+def test_complete_descends_on_large_scrambled_blobs_only():
+    # Above SMOOTH_LIMIT modules, voids 2-3 cells from their electrons: complete descends
+    # first, and its plan is legal. An Eden blob's voids are far: no descent.
+    problem = random_scrambled_problem(complete.SMOOTH_LIMIT + 10, 0)
+    plan = Plan("complete", problem)
+    complete.plan_complete(plan)
+    validate(plan)
+    assert any(n.startswith("bound descent:") for n in plan.notes)
+    assert complete._local(problem)
+    assert not complete._local(random_problem(complete.SMOOTH_LIMIT + 10, 0))
