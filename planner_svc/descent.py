@@ -30,7 +30,8 @@ from where it stopped (scrambled blobs of 1000 modules: where that finishes, pla
 
 from __future__ import annotations
 
-from .bounds import assignment_cost, electron_void_assignment
+from .bounds import (assignment_cost, distance_matrix, electron_void_assignment,
+                     min_cost_assignment)
 from .moves import GOAL_OFFSET, Path, can_move, disk, enterable, is_cut, lone_steps, ring2
 from .rules import Coord, MoveRule, hex_distance, neighbours_xy
 from .shorten import _still_legal
@@ -52,14 +53,31 @@ LINE_LIMIT = 8
 
 class Assignment:
     """An optimal assignment of electrons to voids by hex distance, and its cost (the
-    assignment bound), updated in place by :meth:`apply` after each descending move."""
+    assignment bound), updated in place by :meth:`apply` after each descending move.
 
-    def __init__(self, occ: set[Coord], goal: set[Coord]) -> None:
+    ``keep``: pairs to keep where an optimal assignment can (after an escape: ties are
+    many, and a new assignment from scratch changed pairs far away, so the windows'
+    remembered searches no longer applied)."""
+
+    def __init__(self, occ: set[Coord], goal: set[Coord],
+                 keep: dict[Coord, Coord] | None = None) -> None:
         electrons, voids = sorted(occ - goal), sorted(goal - occ)
         self.goal = goal
         self.void_of: dict[Coord, Coord] = {}
         self.cost = 0
-        if electrons:
+        if electrons and keep:
+            # Among the optimal assignments, the one keeping most pairs of ``keep``: the
+            # cost scaled past any count of pairs, less one per pair kept.
+            cost = distance_matrix(electrons, voids)
+            scaled = cost * (len(electrons) + 1)
+            for i, e in enumerate(electrons):
+                v = keep.get(e)
+                if v is not None and v in self.goal and v not in occ:
+                    scaled[i, voids.index(v)] -= 1
+            col, _ = min_cost_assignment(scaled)
+            self.void_of = {e: voids[int(j)] for e, j in zip(electrons, col)}
+            self.cost = int(sum(cost[i, int(j)] for i, j in enumerate(col)))
+        elif electrons:
             col, total = electron_void_assignment(electrons, voids)
             self.void_of = {e: voids[int(j)] for e, j in zip(electrons, col)}
             self.cost = int(round(total))
@@ -122,7 +140,7 @@ def descend(occ: set[Coord], goal: set[Coord], fixed: Coord,
     afterwards when the descent finished (see the module docstring)."""
     path: Path = []
     escapes: list[tuple[int, int]] = []
-    memo: dict[tuple, Path | None] = {}
+    memo: dict[tuple, Path | int | None] = {}
     obstacles = set(obstacles)
     bound = Assignment(occ, goal)
     while bound.void_of:
@@ -145,7 +163,7 @@ def descend(occ: set[Coord], goal: set[Coord], fixed: Coord,
             occ.add((m[0] + ox, m[1] + oy))
         escapes.append((len(path), len(found)))
         path += found
-        bound = Assignment(occ, goal)
+        bound = Assignment(occ, goal, bound.void_of)
     return path, escapes
 
 
@@ -215,10 +233,12 @@ def _unsafe(occ: set[Coord], goal: set[Coord], m: Coord, b: Coord,
 
 
 def _escape(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set[Coord],
-            bound: Assignment, memo: dict[tuple, Path | None], allowance: int,
+            bound: Assignment, memo: dict[tuple, Path | int | None], allowance: int,
             careful: bool = True) -> tuple[Path | None, int]:
     """The fewest rotations, in a window around some electron or void, after which the
-    bound of the pairs meeting the window is lower; and what is left of ``allowance``."""
+    bound of the pairs meeting the window is lower (``careful``: by the rules of
+    descending moves, :func:`_safe`); and what is left of ``allowance``. Windows are
+    searched shortest pairs first; one of :data:`ESCAPE_ENOUGH` moves ends the search."""
     pair_of = {**bound.void_of, **bound.electron_of}
     centres = sorted(pair_of, key=lambda c: (hex_distance(c, pair_of[c]), c))
     best: Path | None = None
@@ -251,15 +271,25 @@ def _escape(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set[Coor
 
         # Remembered by those cells and the pairs: most windows do not change between
         # escapes. How the rest connects may have, so a remembered path is checked again.
+        # A failure under a cap is remembered as the cap.
         key = (c, near, pairs, careful)
-        if key in memo:
-            found = memo[key]
+        # Only an escape shorter than the best so far matters: the estimate is consistent
+        # (a move changes the local bound by one at most), so the search stops there.
+        cap = None if best is None else len(best) - 1
+        kept = memo.get(key, ())
+        if isinstance(kept, int):           # no escape of ``kept`` moves or fewer
+            if cap is not None and cap <= kept:
+                continue
+        elif kept != ():
+            found = kept
             if found is not None and not _playable(occ, found, fixed, obstacles):
                 found = None
-        else:
-            found = memo[key] = _window_search(
+        if kept == () or isinstance(kept, int):
+            found = _window_search(
                 occ, window, occ - window, c, ESCAPE_RADIUS, fixed, obstacles, done,
-                lambda g, conf: g + max(0, local(conf) - aim), ESCAPE_BUDGET, None, ())
+                lambda g, conf: g + max(0, local(conf) - aim), ESCAPE_BUDGET, None, (),
+                cap=cap)
+            memo[key] = found if found is not None or cap is None else cap
             allowance -= len(seen)      # the configurations it priced
         if found is not None and (best is None or len(found) < len(best)):
             best = found

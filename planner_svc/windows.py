@@ -296,8 +296,8 @@ def _window_search(occ: set[Coord], window: set[Coord], outside: set[Coord], cen
                    is_goal: Callable[[frozenset[Coord]], bool],
                    priority: Callable[[int, frozenset[Coord]], int], budget: int,
                    memo: dict[tuple, Path | None] | None, tag: tuple,
-                   exact: Callable[[], bool] = lambda: True, keep_found: bool = True
-                   ) -> Path | None:
+                   exact: Callable[[], bool] = lambda: True, keep_found: bool = True,
+                   cap: float | None = None) -> Path | None:
     """Best-first search (:func:`planner_svc.search.best_first`) for rotations inside
     ``window``, the disk of ``radius`` around ``centre``, with ``outside`` still.
 
@@ -306,7 +306,9 @@ def _window_search(occ: set[Coord], window: set[Coord], outside: set[Coord], cen
     and what the caller's ``tag`` adds (its goal near the window being fixed, or decided by
     the cells there). Outcomes are kept in ``memo`` under that key and not searched
     again: failures unless ``exact()`` says the search looked beyond the key, paths if
-    ``keep_found``. Runs tried the same windows again after every success elsewhere,
+    ``keep_found``. ``cap``: see :func:`planner_svc.search.best_first` (a search it
+    stops is a failure for the caller to keep or not). Runs tried the same windows again
+    after every success elsewhere,
     and on scrambled blobs of 1000 modules failed searches, most of them repeats, took
     three quarters of the time."""
     components = _still_components(window, outside)
@@ -320,7 +322,7 @@ def _window_search(occ: set[Coord], window: set[Coord], outside: set[Coord], cen
             return None if kept is None else list(kept)
     found, _ = best_first(frozenset(occ & window),
                           window_moves(window, outside, fixed, obstacles, components),
-                          is_goal, priority, budget)
+                          is_goal, priority, budget, cap)
     path = None if found is None else [(m, rule) for _, m, rule in found]
     if key is not None and (exact() if path is None else keep_found):
         memo[key] = None if path is None else list(path)
