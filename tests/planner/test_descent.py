@@ -8,8 +8,8 @@ from planner_svc.bounds import (assignment_lower_bound, random_blob, random_prob
                                 random_scrambled_problem, scramble)
 from planner_svc.descent import Assignment, descend
 from planner_svc.moves import GOAL_OFFSET, enterable, is_cut, lone_steps
-from planner_svc.plan import Plan, validate
-from planner_svc.rules import hex_distance, xy
+from planner_svc.plan import Plan, Problem, validate
+from planner_svc.rules import hex_distance, neighbours_xy, xy
 
 
 def _cells(problem):
@@ -84,3 +84,23 @@ def test_complete_descends_on_large_scrambled_blobs_only():
     assert any(n.startswith("bound descent:") for n in plan.notes)
     assert complete._local(problem)
     assert not complete._local(random_problem(complete.SMOOTH_LIMIT + 10, 0))
+
+
+def test_descent_keeps_off_obstacles():
+    # A third of the free cells next to start or goal are obstacles: every move of the
+    # descent, descending or escaping, is legal among them.
+    moved = 0
+    for seed in range(3):
+        problem = random_scrambled_problem(120, seed)
+        start, goal = _cells(problem)
+        rng = random.Random(seed)
+        rim = sorted({n for c in start | goal for n in neighbours_xy(c)} - start - goal)
+        obstacles = set(rng.sample(rim, len(rim) // 3))
+        problem = Problem.of(start, goal, (0, 0), obstacles)
+        occ = set(start)
+        path, _ = descend(occ, goal, (0, 0), obstacles)
+        plan = Plan("descent", problem)
+        plan.steps = complete.play(set(start), path)
+        assert {xy(c) for c in validate(plan)} == occ and not occ & obstacles
+        moved += len(path)
+    assert moved > 30                                  # 41
