@@ -34,9 +34,9 @@ the scrambled blobs: 2-3) *descend the bound* (:mod:`planner_svc.descent`): move
 each lower the assignment bound by one, none sealing a void or freezing an electron,
 and short window searches where no move does; the relays go on from where it stops.
 When they reach the goal that plan is kept (scrambled blobs of 1000 modules, seeds
-0-19: on 6, e.g. seed 0 343 moves instead of 423 and seed 9 410 instead of 1384); if
+0-19: on 12, e.g. seed 0 348 moves instead of 423 and seed 9 361 instead of 1384); if
 not, everything below runs from the start, and the last resort also digs on from
-there.
+there (kept on 4 more, e.g. seed 6: 259 moves instead of 646).
 
 Under Table 4-3 a lone walker cannot cross a
 notch of the surface (a free cell with four occupied neighbours: no rotation pivots

@@ -12,8 +12,8 @@ last the goal is the start scrambled:
   relays and local exchanges of ``complete`` stall on the instances of 100 and 1000
   modules; its last resort, hole digging (planned peels played forward and back),
   also between smoothed shapes (notches of start and goal filled first), solves the
-  three of 100 modules (2.1-3.8x the bound once shortened and re-planned in windows,
-  mean 2.75x, 8-16 s) and, with advances and a nearest-first peel for craters that end
+  three of 100 modules (2.1-3.6x the bound once shortened and re-planned in windows,
+  mean 2.66x, 8-16 s) and, with advances and a nearest-first peel for craters that end
   in a flat face, the one of 1000 (7.0x the bound, about a minute; of seeds 0-4, 0, 2
   and 3 are solved).
 * **sparse**: random trees (:func:`random_sparse_problem`) in which no module has
@@ -28,10 +28,12 @@ last the goal is the start scrambled:
 * **scrambled**: an Eden blob and, as the goal, the same blob after 2n random legal
   rotations (:func:`random_scrambled_problem`): reachable by construction, so this
   family measures completeness. The random walkers leave thin tendrils and sometimes
-  seal a pocket (an electron walled in), which must be reopened. Solved at 1000 modules since
-  electrons advance along the surface towards far voids: seeds 0, 2 and 3 at 1.75-1.97x
-  the bound once shortened and re-planned in windows, in 7-9 s; seed 1 by the last
-  resort, relays with pinned electrons first and a dig (2.49x, 21 s).
+  seal a pocket (an electron walled in), which must be reopened. At 1000 modules
+  ``complete`` first descends the bound (moves that each lower it by one, window
+  escapes where none does) and the relays finish from there: seeds 0 and 3 at 1.59x and
+  1.49x the bound once shortened and re-planned in windows, in 7-8 s; seed 2's descent
+  stops short, and the relays from the start take it to 1.73x (14 s); seed 1 by the last
+  resort, digging on from where the descent stopped (1.60x, 30 s).
 
 Each instance also gets a *walk reference*
 (:func:`planner_svc.bounds.walk_reference`): the same assignment with each module's cost
