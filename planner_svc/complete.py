@@ -34,9 +34,9 @@ the scrambled blobs: 2-3) *descend the bound* (:mod:`planner_svc.descent`): move
 each lower the assignment bound by one, none sealing a void or freezing an electron,
 and short window searches where no move does; the relays go on from where it stops.
 When they reach the goal that plan is kept (scrambled blobs of 1000 modules, seeds
-0-19: on 12, e.g. seed 0 348 moves instead of 423 and seed 9 361 instead of 1384); if
+0-19: on 13, e.g. seed 0 348 moves instead of 423 and seed 9 339 instead of 1384); if
 not, everything below runs from the start, and the last resort also digs on from
-there (kept on 4 more, e.g. seed 6: 259 moves instead of 646).
+there (kept on 3 more, e.g. seed 6: 259 moves instead of 646).
 
 Under Table 4-3 a lone walker cannot cross a
 notch of the surface (a free cell with four occupied neighbours: no rotation pivots
@@ -135,8 +135,9 @@ unreachability.
 The plan kept is shortened once more and re-planned in small windows
 (:func:`planner_svc.shorten.replan_windows`: stretches of moves inside a disk of radius
 2-4 replaced by the fewest rotations there, every other round on the plan played
-backwards; scrambled blobs of 1000 modules: 19-32% fewer moves, for up to 13 s). Last, on fleets of :data:`FEWEST_LIMIT` modules or fewer, the
-exact search looks for a plan with fewer moves than that
+backwards; scrambled blobs of 1000 modules: 19-32% fewer moves, for up to 13 s). Last,
+on fleets of :data:`FEWEST_LIMIT` modules or fewer, the exact search looks for a plan
+with fewer moves than that
 (:func:`planner_svc.search.fewer_moves`, at most :data:`FEWEST_BUDGET` configurations,
 stopping as soon as none can be shorter): the benchmark's Eden and scrambled instances
 of 10 modules get the fewest, and on thesis-12 it proves that the 18 moves the windows
@@ -154,9 +155,9 @@ from typing import Callable, Iterable, Iterator
 
 from bus.lattice import NEIGHBOUR_OFFSET, Cell, Side
 
-from .descent import descend
 from .bounds import (assignment_lower_bound, distance_matrix, electron_void_assignment,
                      min_cost_assignment)
+from .descent import descend
 from .plan import Plan, Problem
 from .rules import (RULE_OFFSETS, SIDE_OFFSETS, Coord, Move, MoveRule, find_move,
                     hex_distance, is_connected, neighbours_xy, to_move, xy)

@@ -28,7 +28,7 @@ plan), re-plans the plan piece by piece:
   where two moves would do. The second round re-plans the plan played backwards (every
   rotation is reversible): its windows are centred where stretches end rather than where
   they start, and meet knots a second forward round would not (scrambled blobs of 1000
-  modules: 20-32% fewer moves in all, 1-4% more than two rounds forwards in the same
+  modules: 19-32% fewer moves in all, 1-4% more than two rounds forwards in the same
   time).
 
 The result is rebuilt move by move on the configuration of its time (the joints a move
@@ -54,8 +54,8 @@ RETURN_SPAN = 2000
 #: rounds repeat until one changes nothing (Eden blobs: 2-3 rounds).
 ROUNDS = 100
 #: Window re-planning (:func:`replan_windows`): the windows' radii, tried in turn; rounds
-#: of all three at most (forwards, backwards, ...); the configurations the search of one window may expand; and
-#: those all windows of one plan may expand together. Each buys moves with time: on
+#: of all three at most (forwards, backwards, ...); the configurations the search of one
+#: window may expand; and those all windows of one plan may expand together. Each buys moves with time: on
 #: scrambled blobs of 1000 modules 3000 per window and rounds until nothing changes save
 #: 5% more in two to three times the time (4-7 s more); on Eden 1000 an allowance of
 #: 150 000 saves 6% more in 30 s more.

@@ -308,9 +308,8 @@ def _window_search(occ: set[Coord], window: set[Coord], outside: set[Coord], cen
     again: failures unless ``exact()`` says the search looked beyond the key, paths if
     ``keep_found``. ``cap``: see :func:`planner_svc.search.best_first` (a search it
     stops is a failure for the caller to keep or not). Runs tried the same windows again
-    after every success elsewhere,
-    and on scrambled blobs of 1000 modules failed searches, most of them repeats, took
-    three quarters of the time."""
+    after every success elsewhere, and on scrambled blobs of 1000 modules failed
+    searches, most of them repeats, took three quarters of the time."""
     components = _still_components(window, outside)
     key = None
     if memo is not None:
