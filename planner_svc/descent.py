@@ -55,6 +55,8 @@ DESCENT_ALLOWANCE = 200_000
 #: Pairs at most this far apart are looked at for settled modules stepping out of their
 #: line (cells on a shortest line between them: a pair's parallelogram).
 LINE_LIMIT = 8
+#: A window the escape searches have not remembered (a remembered None is a failure).
+_UNSEEN = object()
 
 
 class Assignment:
@@ -69,24 +71,25 @@ class Assignment:
                  keep: dict[Coord, Coord] | None = None) -> None:
         electrons, voids = sorted(occ - goal), sorted(goal - occ)
         self.goal = goal
-        self.void_of: dict[Coord, Coord] = {}
         self.cost = 0
+        col: list[int] = []
         if electrons and keep:
             # Among the optimal assignments, the one keeping most pairs of ``keep``: the
             # cost scaled past any count of pairs, less one per pair kept.
             cost = distance_matrix(electrons, voids)
             scaled = cost * (len(electrons) + 1)
+            column = {v: j for j, v in enumerate(voids)}
             for i, e in enumerate(electrons):
-                v = keep.get(e)
-                if v is not None and v in self.goal and v not in occ:
-                    scaled[i, voids.index(v)] -= 1
-            col, _ = min_cost_assignment(scaled)
-            self.void_of = {e: voids[int(j)] for e, j in zip(electrons, col)}
-            self.cost = int(sum(cost[i, int(j)] for i, j in enumerate(col)))
+                j = column.get(keep.get(e))
+                if j is not None:
+                    scaled[i, j] -= 1
+            col = [int(j) for j in min_cost_assignment(scaled)[0]]
+            self.cost = int(sum(cost[i, j] for i, j in enumerate(col)))
         elif electrons:
-            col, total = electron_void_assignment(electrons, voids)
-            self.void_of = {e: voids[int(j)] for e, j in zip(electrons, col)}
+            picked, total = electron_void_assignment(electrons, voids)
+            col = [int(j) for j in picked]
             self.cost = int(round(total))
+        self.void_of = {e: voids[j] for e, j in zip(electrons, col)}
         self.electron_of = {v: e for e, v in self.void_of.items()}
 
     def change(self, m: Coord, b: Coord) -> tuple[int, Coord | None]:
@@ -163,10 +166,9 @@ def descend(occ: set[Coord], goal: set[Coord], fixed: Coord,
             found, allowance = _escape(occ, goal, fixed, obstacles, bound, memo, allowance, False)
         if found is None:
             break
-        for m, rule in found:
-            ox, oy = GOAL_OFFSET[rule]
+        for m, b in _hops(found):
             occ.discard(m)
-            occ.add((m[0] + ox, m[1] + oy))
+            occ.add(b)
         escapes.append((len(path), len(found)))
         path += found
         bound = Assignment(occ, goal, bound.void_of)
@@ -283,15 +285,16 @@ def _escape(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set[Coor
         # Only an escape shorter than the best so far matters: the estimate is consistent
         # (a move changes the local bound by one at most), so the search stops there.
         cap = None if best is None else len(best) - 1
-        kept = memo.get(key, ())
+        kept = memo.get(key, _UNSEEN)
         if isinstance(kept, int):           # no escape of ``kept`` moves or fewer
             if cap is not None and cap <= kept:
                 continue
-        elif kept != ():
+            kept = _UNSEEN
+        if kept is not _UNSEEN:
             found = kept
             if found is not None and not _playable(occ, found, fixed, obstacles):
                 found = None
-        if kept == () or isinstance(kept, int):
+        else:
             found = _window_search(
                 occ, window, occ - window, c, ESCAPE_RADIUS, fixed, obstacles, done,
                 lambda g, conf: g + max(0, local(conf) - aim), ESCAPE_BUDGET, None, (),
@@ -323,8 +326,10 @@ def _safe(before: frozenset[Coord] | set[Coord], after: frozenset[Coord] | set[C
 
 def _playable(occ: set[Coord], path: Path, fixed: Coord, obstacles: set[Coord]) -> bool:
     """Whether every rotation of ``path`` is legal in turn from ``occ`` (left unchanged)."""
-    hops = []
-    for m, rule in path:
-        ox, oy = GOAL_OFFSET[rule]
-        hops.append((m, (m[0] + ox, m[1] + oy)))
-    return _still_legal(occ, hops, fixed, obstacles)
+    return _still_legal(occ, _hops(path), fixed, obstacles)
+
+
+def _hops(path: Path) -> list[tuple[Coord, Coord]]:
+    """``path``'s rotations as (cell left, cell entered)."""
+    return [(m, (m[0] + GOAL_OFFSET[rule][0], m[1] + GOAL_OFFSET[rule][1]))
+            for m, rule in path]

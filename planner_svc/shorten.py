@@ -55,10 +55,10 @@ RETURN_SPAN = 2000
 ROUNDS = 100
 #: Window re-planning (:func:`replan_windows`): the windows' radii, tried in turn; rounds
 #: of all three at most (forwards, backwards, ...); the configurations the search of one
-#: window may expand; and those all windows of one plan may expand together. Each buys moves with time: on
-#: scrambled blobs of 1000 modules 3000 per window and rounds until nothing changes save
-#: 5% more in two to three times the time (4-7 s more); on Eden 1000 an allowance of
-#: 150 000 saves 6% more in 30 s more.
+#: window may expand; and those all windows of one plan may expand together. Each buys
+#: moves with time: on scrambled blobs of 1000 modules 3000 per window and rounds until
+#: nothing changes save 5% more in two to three times the time (4-7 s more); on Eden 1000
+#: an allowance of 150 000 saves 6% more in 30 s more.
 WINDOW_RADII = (2, 3, 4)
 WINDOW_ROUNDS = 2
 WINDOW_BUDGET = 1000
