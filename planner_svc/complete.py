@@ -802,11 +802,17 @@ def _descended(planner: str, p: Problem, advance: bool) -> _Heuristic:
     plan = Plan(planner, p)
     plan.steps = play({xy(c) for c in p.initial}, path)
     escaped = sum(n for _, n in escapes)
+    note = len(plan.notes)
     plan.notes.append(f"bound descent: {len(path)} moves, {len(path) - escaped} of them each "
                       f"lowering the assignment bound by one, {escaped} in {len(escapes)} "
-                      "window escapes; relays from there")
+                      "window escapes")
     relays = _Heuristic(plan, start=occ, advance=advance)
     relays.run()
+    # Said once the relays have run: the descent may have reached the goal alone.
+    added = plan.moves - len(path)
+    plan.notes[note] += ("; it reached the goal" if not added and plan.ok else
+                         f"; relays from there: {added} moves" + ("" if plan.ok else
+                                                                    ", stopped short"))
     return relays
 
 

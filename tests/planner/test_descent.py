@@ -83,6 +83,12 @@ def test_complete_descends_on_large_scrambled_blobs_only():
     validate(plan)
     assert any(n.startswith("bound descent:") for n in plan.notes)
     assert complete._local(problem)
+    # The note counts the relays' moves after the descent's, once they have run.
+    relays = complete._descended("complete", problem, True)
+    note = next(n for n in relays.plan.notes if n.startswith("bound descent:"))
+    added = relays.plan.moves - int(note.split()[2])
+    assert note.endswith("; it reached the goal") if relays.plan.ok and not added else (
+        f"; relays from there: {added} moves" in note)
     assert not complete._local(random_problem(complete.SMOOTH_LIMIT + 10, 0))
 
 
