@@ -47,7 +47,7 @@ from the start by random legal rotations, so it is reachable by construction:
 from __future__ import annotations
 
 import random
-from typing import Iterable
+from typing import Collection, Iterable
 
 import networkx as nx
 import numpy as np
@@ -168,13 +168,42 @@ def _plain_assignment(c: list[list[int]]) -> tuple[list[int], float]:
     return col, sum(c[i][col[i]] for i in range(n))
 
 
-def assignment_cost(electrons: list[Coord], voids: list[Coord]) -> int:
+#: Up to this many electrons :func:`assignment_cost` takes the cheapest assignment by
+#: dynamic programming over the sets of voids taken (4 cells: 11 us instead of 17 us;
+#: from 5 the Hungarian method is as quick). Window searches price a configuration each
+#: with it, mostly with 3-5 electrons.
+SUBSET_ROWS = 4
+
+
+def assignment_cost(electrons: Collection[Coord], voids: Collection[Coord]) -> int:
     """The minimum total hex distance of an assignment of ``electrons`` to ``voids``
-    (as many of each): the lower bound of one configuration, quick for a few cells."""
-    if len(electrons) >= PLAIN_ROWS:
-        return int(round(min_cost_assignment(distance_matrix(electrons, voids))[1]))
-    rows = [[hex_distance(e, v) for v in voids] for e in electrons]
-    return int(_plain_assignment(rows)[1]) if rows else 0
+    (as many of each, in any order): the lower bound of one configuration, quick for a
+    few cells."""
+    n = len(electrons)
+    if n >= PLAIN_ROWS:
+        return int(round(min_cost_assignment(distance_matrix(list(electrons),
+                                                             list(voids)))[1]))
+    # hex_distance inlined: a search prices tens of thousands of configurations.
+    rows = [[(abs(vx - ex) + abs(vy - ey) + abs(vx - ex + vy - ey)) // 2 for vx, vy in voids]
+            for ex, ey in electrons]
+    if n > SUBSET_ROWS:
+        return int(_plain_assignment(rows)[1])
+    if n <= 1:
+        return rows[0][0] if n else 0
+    # best[mask]: the cheapest way for the first popcount(mask) electrons to take the
+    # voids of mask.
+    best = {0: 0}
+    for row in rows:
+        nxt: dict[int, int] = {}
+        for mask, cost in best.items():
+            for j, d in enumerate(row):
+                bit = 1 << j
+                if not mask & bit:
+                    got = nxt.get(mask | bit)
+                    if got is None or cost + d < got:
+                        nxt[mask | bit] = cost + d
+        best = nxt
+    return best[(1 << n) - 1]
 
 
 def distance_matrix(a: Iterable[Cell | Coord], b: Iterable[Cell | Coord]) -> np.ndarray:

@@ -270,8 +270,8 @@ def _escape(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set[Coor
             got = seen.get(conf)
             if got is None:
                 got = seen[conf] = assignment_cost(
-                    electrons_out + sorted(x for x in conf if x not in goal),
-                    voids_out + sorted(x for x in holes if x not in conf))
+                    electrons_out + [x for x in conf if x not in goal],
+                    voids_out + [x for x in holes if x not in conf])
             return got
 
         def done(conf: frozenset[Coord], watch=disk(c, ESCAPE_RADIUS + 2)) -> bool:

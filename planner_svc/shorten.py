@@ -212,7 +212,7 @@ def replan_windows(initial: set[Coord], hops: list[Hop], fixed: Coord,
     def estimate(conf: frozenset[Coord], target: frozenset[Coord]) -> int:
         key = (conf - target, target - conf)
         if key not in estimates:
-            estimates[key] = assignment_cost(sorted(key[0]), sorted(key[1]))
+            estimates[key] = assignment_cost(key[0], key[1])
         return estimates[key]
 
     # The moves of the last window whose search failed: the windows of the next few

@@ -419,10 +419,13 @@ def test_small_assignments_run_the_same_method_without_numpy(monkeypatch):
             if n <= 6:
                 assert total == min(sum(cost[i, p[i]] for i in range(n))
                                     for p in itertools.permutations(range(n)))
-    cells = [(rng.randint(-9, 9), rng.randint(-9, 9)) for _ in range(10)]
-    a, b = cells[:5], cells[5:]
-    assert bounds.assignment_cost(a, b) == bounds.min_cost_assignment(
-        bounds.distance_matrix(a, b))[1]
+    # assignment_cost: by subsets up to SUBSET_ROWS electrons, then the Hungarian method.
+    for n in range(bounds.SUBSET_ROWS + 3):
+        for _ in range(30):
+            cells = [(rng.randint(-9, 9), rng.randint(-9, 9)) for _ in range(2 * n)]
+            a, b = cells[:n], cells[n:]
+            assert bounds.assignment_cost(a, b) == (bounds.min_cost_assignment(
+                bounds.distance_matrix(a, b))[1] if n else 0)
 
 
 def test_front_walk_tries_another_electron_when_a_walk_fails():
