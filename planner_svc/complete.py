@@ -796,11 +796,12 @@ def _descended(planner: str, p: Problem, advance: bool) -> _Heuristic:
     """Bound descent (:func:`planner_svc.descent.descend`), then the relays from where it
     stopped (returned: their plan is ok if they reached the goal; if not, the last resort
     may dig on from there)."""
-    occ = {xy(c) for c in p.initial}
+    initial = {xy(c) for c in p.initial}
+    occ = set(initial)
     path, escapes = descend(occ, {xy(c) for c in p.goal}, xy(p.fixed),
                             {xy(c) for c in p.obstacles})
     plan = Plan(planner, p)
-    plan.steps = play({xy(c) for c in p.initial}, path)
+    plan.steps = play(initial, path)
     escaped = sum(n for _, n in escapes)
     note = len(plan.notes)
     plan.notes.append(f"bound descent: {len(path)} moves, {len(path) - escaped} of them each "

@@ -31,6 +31,8 @@ instead of 1.93x).
 
 from __future__ import annotations
 
+from typing import Iterable
+
 from .bounds import (assignment_cost, distance_matrix, electron_void_assignment,
                      min_cost_assignment)
 from .moves import GOAL_OFFSET, Path, can_move, disk, enterable, is_cut, lone_steps, ring2
@@ -227,17 +229,8 @@ def _unsafe(occ: set[Coord], goal: set[Coord], m: Coord, b: Coord,
     after = set(occ)
     after.discard(m)
     after.add(b)
-    near = {*ring2(m), *ring2(b)}
-    for w in near:
-        # A void nearby (or the cell ``m`` leaves, if a goal cell) must stay enterable.
-        if w in goal and w not in after and not enterable(after, w, obstacles) \
-                and (w == m or enterable(occ, w, obstacles)):
-            return True
-    for x in {*ring2(b), b}:
-        if (x in after and x not in goal and not can_move(after, x, obstacles)
-                and (x == b or can_move(occ, x, obstacles))):
-            return True
-    return False
+    return (_closes_void(occ, after, {*ring2(m), *ring2(b)}, goal, obstacles)
+            or _freezes_electron(occ, after, {*ring2(b), b}, goal, obstacles))
 
 
 def _escape(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set[Coord],
@@ -309,19 +302,29 @@ def _escape(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set[Coor
 
 
 def _safe(before: frozenset[Coord] | set[Coord], after: frozenset[Coord] | set[Coord],
-          watch: list[Coord], goal: set[Coord], obstacles: set[Coord]) -> bool:
+          watch: Iterable[Coord], goal: set[Coord], obstacles: set[Coord]) -> bool:
     """Whether, of the cells ``watch``, every void unenterable ``after`` was an
     unenterable void ``before``, and every electron unable to move ``after`` was one
     ``before`` (the rules of descending moves, for a window's rotations)."""
-    for w in watch:
-        if w in after:
-            if w not in goal and not can_move(after, w, obstacles) and (
-                    w not in before or can_move(before, w, obstacles)):
-                return False
-        elif w in goal and not enterable(after, w, obstacles) and (
-                w in before or enterable(before, w, obstacles)):
-            return False
-    return True
+    return not (_closes_void(before, after, watch, goal, obstacles)
+                or _freezes_electron(before, after, watch, goal, obstacles))
+
+
+def _closes_void(before: frozenset[Coord] | set[Coord], after: frozenset[Coord] | set[Coord],
+                 watch: Iterable[Coord], goal: set[Coord], obstacles: set[Coord]) -> bool:
+    """Whether a void of ``watch`` is unenterable ``after`` that was enterable, or
+    occupied, ``before``."""
+    return any(w in goal and w not in after and not enterable(after, w, obstacles)
+               and (w in before or enterable(before, w, obstacles)) for w in watch)
+
+
+def _freezes_electron(before: frozenset[Coord] | set[Coord],
+                      after: frozenset[Coord] | set[Coord], watch: Iterable[Coord],
+                      goal: set[Coord], obstacles: set[Coord]) -> bool:
+    """Whether an electron of ``watch`` cannot move ``after`` that could, or was not
+    there, ``before``."""
+    return any(w in after and w not in goal and not can_move(after, w, obstacles)
+               and (w not in before or can_move(before, w, obstacles)) for w in watch)
 
 
 def _playable(occ: set[Coord], path: Path, fixed: Coord, obstacles: set[Coord]) -> bool:

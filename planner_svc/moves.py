@@ -117,8 +117,8 @@ def can_move(occ: set[Coord], c: Coord, obstacles: set[Coord]) -> bool:
     return next(lone_steps(occ, c, obstacles), None) is not None
 
 
-def enterable(settled: set[Coord], void: Coord, obstacles: frozenset[Coord] | set[Coord] = frozenset()
-              ) -> bool:
+def enterable(settled: set[Coord], void: Coord,
+              obstacles: frozenset[Coord] | set[Coord] = frozenset()) -> bool:
     """Whether a void can still be entered once its neighbours stop moving.
 
     Table 4-3: some row must bring a walker from a free neighbour into ``void`` about
