@@ -35,8 +35,11 @@ each lower the assignment bound by one, none sealing a void or freezing an elect
 and short window searches where no move does; the relays go on from where it stops.
 When they reach the goal that plan is kept (scrambled blobs of 1000 modules, seeds
 0-19: on 13, e.g. seed 0 348 moves instead of 423 and seed 9 339 instead of 1384); if
-not, everything below runs from the start, and the last resort also digs on from
-there (kept on 3 more, e.g. seed 6: 259 moves instead of 646).
+not, everything below runs from the start. Where the relays are stuck too, digging on
+from where the descent stopped comes first, and is kept at once when it is at most
+:data:`DUG_KEEP` times the bound (seeds 0-39: 6 of the 10 that get there, e.g. seed 6
+259 moves instead of 646, in 10 s instead of 27); otherwise it is one more try of the
+last resort.
 
 Under Table 4-3 a lone walker cannot cross a
 notch of the surface (a free cell with four occupied neighbours: no rotation pivots
@@ -179,6 +182,12 @@ FEWEST_BUDGET = 2500
 #: Large fleets descend the bound first (:mod:`planner_svc.descent`) when it is at most
 #: this many moves per electron.
 DESCENT_REACH = 4
+#: Where the descent and the relays are both stuck, digging on from where the descent
+#: stopped is kept at once if, shortened, it is at most this many times the bound
+#: (scrambled blobs of 1000 modules, seeds 0-39: 6 of 10 such plans were 2.0-3.3x, and
+#: the last resort's other tries beat none of them; the other 4 were 3.8-8.7x, and the
+#: smoothed run beat three).
+DUG_KEEP = 3.5
 #: Chain cost added per void that a fill would make unenterable.
 UNSAFE_PENALTY = 1000
 #: Chain cost taken off per unit of void depth (deep voids first, they seal soonest).
@@ -787,9 +796,13 @@ def _local(p: Problem) -> bool:
     """Whether the assignment bound per electron is at most :data:`DESCENT_REACH`: each
     void is a few cells from its electron, as on scrambled blobs (2-3 cells; Eden blobs
     8-20, where bound descent spends its allowance and stops)."""
-    occ, goal = {xy(c) for c in p.initial}, {xy(c) for c in p.goal}
-    electrons = len(occ - goal)
-    return electrons > 0 and assignment_lower_bound(occ, goal) <= DESCENT_REACH * electrons
+    electrons = len({xy(c) for c in p.initial} - {xy(c) for c in p.goal})
+    return electrons > 0 and _bound(p) <= DESCENT_REACH * electrons
+
+
+def _bound(p: Problem) -> int:
+    """The assignment lower bound of ``p`` (:mod:`planner_svc.bounds`)."""
+    return assignment_lower_bound({xy(c) for c in p.initial}, {xy(c) for c in p.goal})
 
 
 def _descended(planner: str, p: Problem, advance: bool) -> _Heuristic:
@@ -928,6 +941,20 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
     if front is not None and front.ok and (
             not forward.ok or _shortened_difference(front, forward) <= 0):
         forward = front
+    # Where the relays are stuck too, digging on from where the descent stopped is
+    # quick (0.1-5 s) and, when short enough, kept at once: the other tries below take
+    # 10-40 s more and were longer on every such plan of scrambled seeds 0-39.
+    dug_descent: Plan | None = None
+    if not forward.ok and descent is not None:
+        dug_descent = Plan(plan.planner, p)
+        dug_descent.notes = list(descent.plan.notes)
+        descent.dig_on(dug_descent, HOLE_CALLS_LARGE)
+        shorten(dug_descent)
+        if dug_descent.ok and dug_descent.moves <= DUG_KEEP * _bound(p):
+            plan.steps, plan.ok = dug_descent.steps, True
+            plan.notes += dug_descent.notes
+            plan.notes.append(DESCENT_DUG_NOTE)
+            return False
     if not forward.ok and not walled:
         backward = Plan(plan.planner, Problem(p.goal, p.initial, p.fixed, p.obstacles, p.name))
         _Heuristic(backward, advance=advance).run()
@@ -956,6 +983,8 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
         large = len(goal) > SMOOTH_LIMIT
         calls = HOLE_CALLS_LARGE if large else HOLE_CALLS
         tries: list[tuple[Plan, str]] = []
+        if dug_descent is not None and dug_descent.ok:
+            tries.append((dug_descent, DESCENT_DUG_NOTE))
         smoothed = Plan(plan.planner, p)
         if walled:
             if smoothed_plan(smoothed, advance=advance, hole_calls=calls):
@@ -968,11 +997,6 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
             dug = Plan(plan.planner, p)
             relays.dig_on(dug, calls)
             tries.append((dug, DUG_NOTE))
-            if descent is not None:
-                dug = Plan(plan.planner, p)
-                dug.notes = list(descent.plan.notes)
-                descent.dig_on(dug, calls)
-                tries.append((dug, DESCENT_DUG_NOTE))
             if large:
                 pinned = _Heuristic(Plan(plan.planner, p), advance=advance, pins=True)
                 pinned.run()

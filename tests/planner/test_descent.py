@@ -3,6 +3,8 @@ void, and ``complete`` uses it where voids are near their electrons."""
 
 import random
 
+import pytest
+
 from planner_svc import complete
 from planner_svc.bounds import (assignment_lower_bound, random_blob, random_problem,
                                 random_scrambled_problem, scramble)
@@ -110,3 +112,28 @@ def test_descent_keeps_off_obstacles():
         assert {xy(c) for c in validate(plan)} == occ and not occ & obstacles
         moved += len(path)
     assert moved > 30                                  # 41
+
+
+@pytest.mark.slow
+def test_stuck_relays_keep_the_descents_digs(monkeypatch):
+    # Scrambled 1000 seed 18: the descent and its relays stop, so do the relays from the
+    # start and from where phase 1 stopped. Digging on from where the descent stopped
+    # reaches the goal within DUG_KEEP times the bound, so that plan is kept at once:
+    # neither the reverse problem nor the last resort's other tries run.
+    problem = random_scrambled_problem(1000, 18)
+    others = []             # the reverse problem's relays, pinned relays, smoothed shapes
+    init = complete._Heuristic.__init__
+
+    def recording(self, plan, *args, **kwargs):
+        if plan.problem.initial == problem.goal or kwargs.get("pins"):
+            others.append(plan)
+        init(self, plan, *args, **kwargs)
+
+    monkeypatch.setattr(complete._Heuristic, "__init__", recording)
+    monkeypatch.setattr(complete, "smoothed_plan", lambda *a, **k: others.append(a))
+    plan = Plan("complete", problem)
+    complete.plan_complete(plan)
+    validate(plan)
+    assert plan.ok and complete.DESCENT_DUG_NOTE in plan.notes
+    assert not others
+    assert plan.moves <= complete.DUG_KEEP * assignment_lower_bound(*_cells(problem))
