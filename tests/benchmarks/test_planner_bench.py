@@ -32,9 +32,9 @@ last the goal is the start scrambled:
   ``complete`` first descends the bound (moves that each lower it by one, window
   escapes where none does) and the relays finish from there: seeds 0 and 3 at 1.59x and
   1.49x the bound once shortened and re-planned in windows, in 6-9 s; seed 2's descent
-  stops short, and the relays from the start take it to 1.73x (12 s); on seed 1 every
-  relay run stops, and digging on from where the descent stopped takes it to 1.60x
-  (14 s; 29 s when the whole last resort ran).
+  stops short, and the relays from where phase 1 stopped take it to 1.73x (12 s); on
+  seed 1 every relay run stops, and digging on from where the descent stopped takes it
+  to 1.60x (14 s; 29 s when the whole last resort ran).
 
 Each instance also gets a *walk reference*
 (:func:`planner_svc.bounds.walk_reference`): the same assignment with each module's cost
