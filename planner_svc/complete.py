@@ -972,14 +972,16 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
         # the bound instead of 9x on two of three seeds). Both are tried and the shortest
         # plan kept: neither is always shorter (scrambled blobs of 1000 modules, seeds 1,
         # 6 and 9: 1706, 2056 and 2968 moves digging from where the relays stopped,
-        # 1954, 942 and 3461 through smoothed shapes). On large fleets the relays also
-        # run again with pinned electrons first (:meth:`_Heuristic._pinned`), digging
-        # where they stop: stuck relays have often walled electrons into cracks of the
-        # goal (seeds 1, 9 and 10: 680, 2211 and 496 moves instead of 1706, 2960 and 562;
-        # seeds 6, 11, 13, 15 and 18 keep their plans, one relay run later). Where voids
-        # are walled in (large fleets only), smoothed shapes go first and plain digging
-        # runs only when that fails: on Eden blobs of 1000 modules (seeds 0-4) it
-        # finished none, and took 45 s (pins changed nothing there on seeds 0 and 3).
+        # 1954, 942 and 3461 through smoothed shapes). After a bound descent, digging on
+        # from where it stopped is a try too. On large fleets without a descent the
+        # relays also run again with pinned electrons first (:meth:`_Heuristic._pinned`),
+        # digging where they stop: stuck relays have often walled electrons into cracks
+        # of the goal (before the descent, seeds 1, 9 and 10: 680, 2211 and 496 moves
+        # instead of 1706, 2960 and 562; seeds 6, 11, 13, 15 and 18 kept their plans, one
+        # relay run later). Where voids are walled in (large fleets only), smoothed
+        # shapes go first and plain digging runs only when that fails: on Eden blobs of
+        # 1000 modules (seeds 0-4) it finished none, and took 45 s (pins changed nothing
+        # there on seeds 0 and 3).
         assert relays is not None
         large = len(goal) > SMOOTH_LIMIT
         calls = HOLE_CALLS_LARGE if large else HOLE_CALLS
