@@ -798,12 +798,7 @@ def _local(p: Problem) -> bool:
     void is a few cells from its electron, as on scrambled blobs (2-3 cells; Eden blobs
     8-20, where bound descent spends its allowance and stops)."""
     electrons = len({xy(c) for c in p.initial} - {xy(c) for c in p.goal})
-    return electrons > 0 and _bound(p) <= DESCENT_REACH * electrons
-
-
-def _bound(p: Problem) -> int:
-    """The assignment lower bound of ``p`` (:mod:`planner_svc.bounds`)."""
-    return assignment_lower_bound({xy(c) for c in p.initial}, {xy(c) for c in p.goal})
+    return electrons > 0 and assignment_lower_bound(p.initial, p.goal) <= DESCENT_REACH * electrons
 
 
 def _descended(planner: str, p: Problem, advance: bool) -> _Heuristic:
@@ -951,7 +946,8 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
         dug_descent.notes = list(descent.plan.notes)
         descent.dig_on(dug_descent, HOLE_CALLS_LARGE)
         shorten(dug_descent)
-        if dug_descent.ok and dug_descent.moves <= DUG_KEEP * _bound(p):
+        bound = assignment_lower_bound(p.initial, p.goal)
+        if dug_descent.ok and dug_descent.moves <= DUG_KEEP * bound:
             plan.steps, plan.ok = dug_descent.steps, True
             plan.notes += dug_descent.notes
             plan.notes.append(DESCENT_DUG_NOTE)
