@@ -807,15 +807,16 @@ def _descended(planner: str, p: Problem, advance: bool) -> _Heuristic:
     may dig on from there)."""
     initial = {xy(c) for c in p.initial}
     occ = set(initial)
-    path, escapes = descend(occ, {xy(c) for c in p.goal}, xy(p.fixed),
-                            {xy(c) for c in p.obstacles})
+    path, escapes, fills = descend(occ, {xy(c) for c in p.goal}, xy(p.fixed),
+                                   {xy(c) for c in p.obstacles})
     plan = Plan(planner, p)
     plan.steps = play(initial, path)
-    escaped = sum(n for _, n in escapes)
+    escaped, filled = sum(n for _, n in escapes), sum(n for _, n in fills)
     note = len(plan.notes)
-    plan.notes.append(f"bound descent: {len(path)} moves, {len(path) - escaped} of them each "
-                      f"lowering the assignment bound by one, {escaped} in {len(escapes)} "
-                      "window escapes")
+    plan.notes.append(f"bound descent: {len(path)} moves, {len(path) - escaped - filled} of "
+                      "them each lowering the assignment bound by one, "
+                      f"{escaped} in {len(escapes)} window escapes"
+                      + (f", {filled} in {len(fills)} fills" if fills else ""))
     relays = _Heuristic(plan, start=occ, advance=advance)
     relays.run()
     # Said once the relays have run: the descent may have reached the goal alone.

@@ -5,7 +5,7 @@ import random
 
 import pytest
 
-from planner_svc import complete
+from planner_svc import complete, descent
 from planner_svc.bounds import (assignment_lower_bound, random_blob, random_problem,
                                 random_scrambled_problem, scramble)
 from planner_svc.descent import Assignment, descend
@@ -54,8 +54,8 @@ def test_descending_moves_lower_the_bound_and_seal_nothing():
         problem = random_scrambled_problem(120, seed)
         start, goal = _cells(problem)
         occ = set(start)
-        path, escapes = descend(occ, goal, (0, 0))
-        inside = {i for first, n in escapes for i in range(first, first + n)}
+        path, escapes, fills = descend(occ, goal, (0, 0))
+        inside = {i for first, n in escapes + fills for i in range(first, first + n)}
         cur = set(start)
         bound = assignment_lower_bound(cur, goal)
         for i, (m, rule) in enumerate(path):
@@ -106,12 +106,35 @@ def test_descent_keeps_off_obstacles():
         obstacles = set(rng.sample(rim, len(rim) // 3))
         problem = Problem.of(start, goal, (0, 0), obstacles)
         occ = set(start)
-        path, _ = descend(occ, goal, (0, 0), obstacles)
+        path, _, _ = descend(occ, goal, (0, 0), obstacles)
         plan = Plan("descent", problem)
         plan.steps = complete.play(set(start), path)
         assert {xy(c) for c in validate(plan)} == occ and not occ & obstacles
         moved += len(path)
     assert moved > 30                                  # 41
+
+
+def test_a_fill_finishes_where_no_escape_is_left(monkeypatch):
+    # Scrambled 120 seed 30: the escapes run out with one void left, walled in a few cells
+    # from its electron; a fill (a wider window) takes the last pair out, the bound lower,
+    # and the descent reaches the goal. Every move is legal.
+    problem = random_scrambled_problem(120, 30)
+    start, goal = _cells(problem)
+    occ = set(start)
+    path, _, fills = descend(occ, goal, (0, 0))
+    assert occ == goal and fills
+    plan = Plan("descent", problem)
+    plan.steps = complete.play(set(start), path)
+    assert {xy(c) for c in validate(plan)} == goal            # every move legal
+    configurations = [{xy(c) for c in conf} for conf in plan.configurations()]
+    for first, n in fills:
+        before, after = configurations[first], configurations[first + n]
+        assert len(goal - after) == len(goal - before) - 1
+        assert assignment_lower_bound(after, goal) < assignment_lower_bound(before, goal)
+    monkeypatch.setattr(descent, "FILL_VOIDS", 0)
+    occ = set(start)
+    descend(occ, goal, (0, 0))
+    assert occ != goal
 
 
 @pytest.mark.slow
