@@ -30,11 +30,12 @@ last the goal is the start scrambled:
   family measures completeness. The random walkers leave thin tendrils and sometimes
   seal a pocket (an electron walled in), which must be reopened. At 1000 modules
   ``complete`` first descends the bound (moves that each lower it by one, window
-  escapes where none does) and the relays finish from there: seeds 0 and 3 at 1.59x and
-  1.49x the bound once shortened and re-planned in windows, in 6-9 s; seed 2's descent
-  stops short, and the relays from where phase 1 stopped take it to 1.73x (12 s); on
-  seed 1 every relay run stops, and digging on from where the descent stopped takes it
-  to 1.60x (14 s; 29 s when the whole last resort ran).
+  escapes where none does, fills of the last voids in wider windows) and the relays
+  finish from there: seeds 0, 2 and 3 at 1.57x, 1.53x and 1.49x the bound once
+  shortened and re-planned in windows, in 7-8 s (seed 2's descent reaches the goal with
+  three fills; without them it stopped short, and the relays from where phase 1 stopped
+  took it to 1.73x in 12 s); on seed 1 every relay run stops, and digging on from where
+  the descent stopped takes it to 1.58x (12 s).
 
 Each instance also gets a *walk reference*
 (:func:`planner_svc.bounds.walk_reference`): the same assignment with each module's cost
