@@ -29,17 +29,17 @@ fewer run every phase. Candidates are compared as they will be played: shortened
 :mod:`planner_svc.shorten` (detours dropped).
 
 Before the relays, fleets of more than :data:`SMOOTH_LIMIT` modules whose assignment
-bound is at most :data:`DESCENT_REACH` moves per electron (a local rearrangement, as
-the scrambled blobs: 2-3) *descend the bound* (:mod:`planner_svc.descent`): moves that
-each lower the assignment bound by one, none sealing a void or freezing an electron,
-short window searches where no move does, and wider ones that fill the last few voids;
-the relays go on from where it stops. When they reach the goal that plan is kept
-(scrambled blobs of 1000 modules, seeds 0-19: on 15, e.g. seed 0 344 moves instead of
-423 and seed 9 339 instead of 1384); if not, everything below runs from the start. Where the relays are stuck too, digging on
-from where the descent stopped comes first, and is kept at once when it is at most
-:data:`DUG_KEEP` times the bound (seeds 0-39: 6 of the 10 that get there, e.g. seed 6
-259 moves instead of 646, in 10 s instead of 27); otherwise it is one more try of the
-last resort.
+bound is at most :data:`DESCENT_REACH` moves per electron (a local rearrangement, as the
+scrambled blobs: 2-3) *descend the bound* (:mod:`planner_svc.descent`): moves that each
+lower the assignment bound by one, none sealing a void or freezing an electron, short
+window searches where no move does, and wider ones that fill the last few voids; the
+relays go on from where it stops. When they reach the goal that plan is kept (scrambled
+blobs of 1000 modules, seeds 0-19: on 15, e.g. seed 0 344 moves instead of 423 and seed
+9 339 instead of 1384); if not, everything below runs from the start. Where the relays
+are stuck too, digging on from where the descent stopped comes first, and is kept at
+once when it is at most :data:`DUG_KEEP` times the bound (seeds 0-39: 6 of the 10 that
+get there, e.g. seed 6 259 moves instead of 646, in 10 s instead of 27); otherwise it is
+one more try of the last resort.
 
 Under Table 4-3 a lone walker cannot cross a
 notch of the surface (a free cell with four occupied neighbours: no rotation pivots

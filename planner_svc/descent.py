@@ -31,10 +31,10 @@ cost. :func:`descend` builds such a plan from an optimal electron -> void assign
   1.53x the bound instead of 1.73x).
 
 It stops when the goal is reached, when neither an escape nor a fill is found, or when
-its search allowance is spent. ``complete`` runs it first on large fleets whose voids are near
-their electrons and lets the relays finish from where it stopped (scrambled blobs of
-1000 modules, seeds 0-19: the median plan 1.59x the bound once re-planned in windows,
-instead of 1.93x).
+its search allowance is spent. ``complete`` runs it first on large fleets whose voids
+are near their electrons and lets the relays finish from where it stopped (scrambled
+blobs of 1000 modules, seeds 0-19: the median plan 1.59x the bound once re-planned in
+windows, instead of 1.93x).
 """
 
 from __future__ import annotations
