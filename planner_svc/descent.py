@@ -341,7 +341,7 @@ def _fill(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set[Coord]
         for m, b in _hops(found):
             after.discard(m)
             after.add(b)
-        if after == goal or Assignment(after, goal).cost < bound.cost:
+        if assignment_cost(after - goal, goal - after) < bound.cost:
             return found
     return None
 
