@@ -35,11 +35,12 @@ lower the assignment bound by one, none sealing a void or freezing an electron, 
 window searches where no move does, and wider ones that fill the last few voids; the
 relays go on from where it stops. When they reach the goal that plan is kept (scrambled
 blobs of 1000 modules, seeds 0-19: on 15, e.g. seed 0 344 moves instead of 423 and seed
-9 339 instead of 1384); if not, everything below runs from the start. Where the relays
-are stuck too, digging on from where the descent stopped comes first, and is kept at
-once when it is at most :data:`DUG_KEEP` times the bound (seeds 0-39: 6 of the 10 that
-get there, e.g. seed 6 259 moves instead of 646, in 10 s instead of 27); otherwise it is
-one more try of the last resort.
+9 339 instead of 1384). If not, a few digs from where it stopped come next (holes dug
+open and refilled), kept when the plan is at most :data:`DUG_EARLY` times the bound;
+otherwise everything below runs from the start. Where the relays are stuck too, digging
+on from where the descent stopped is kept when it is at most :data:`DUG_KEEP` times the
+bound (seeds 0-39: 6 of the 10 that get there, e.g. seed 6 259 moves instead of 646, in
+10 s instead of 27); otherwise it is one more try of the last resort.
 
 Under Table 4-3 a lone walker cannot cross a
 notch of the surface (a free cell with four occupied neighbours: no rotation pivots
@@ -189,6 +190,16 @@ DESCENT_REACH = 4
 #: smoothed run beat three. Seeds 40-59: kept on five, one of them 344 moves where the
 #: reverse problem's relays, which run after, would have made 306).
 DUG_KEEP = 3.5
+#: Where the descent's relays are stuck, digging on from where the descent stopped (at
+#: most DUG_EARLY_CALLS digs) is kept before any other relays run if, shortened, it is
+#: at most this many times the bound. Scrambled blobs of 1000 modules, seeds 0-59: kept
+#: on seeds 1, 6, 21, 40 and 55 (1.8-2.3x, 1-5 digs, 0.04-0.5 s). Seed 21 takes 276 moves
+#: instead of the 314 of the relays from the start; the others had been dug from there
+#: anyway once those relays stopped (1.5-2 s each). Seeds 18, 29 and 31 (2.7-3.1x) and 30
+#: (3.0x; the relays from the start make 285 moves, 1.7x) are left to them, as before.
+#: On seed 23 the five digs fail (4-5 s lost).
+DUG_EARLY = 2.5
+DUG_EARLY_CALLS = 5
 #: Chain cost added per void that a fill would make unenterable.
 UNSAFE_PENALTY = 1000
 #: Chain cost taken off per unit of void depth (deep voids first, they seal soonest).
@@ -827,6 +838,29 @@ def _descended(planner: str, p: Problem, advance: bool) -> _Heuristic:
     return relays
 
 
+def _dug_descent(planner: str, p: Problem, descent: _Heuristic, calls: int) -> Plan:
+    """Holes dug open and refilled (at most ``calls`` digs) from where the descent's
+    relays stopped, or its last dig did; shortened (detours dropped) if that reached the
+    goal."""
+    dug = Plan(planner, p)
+    dug.notes = list(descent.plan.notes)
+    descent.dig_on(dug, calls)
+    shorten(dug)
+    return dug
+
+
+def _dug_kept(plan: Plan, dug: Plan, factor: float) -> bool:
+    """Take ``dug`` (:func:`_dug_descent`) as ``plan`` if it reached the goal in at most
+    ``factor`` times the assignment bound."""
+    p = plan.problem
+    if not dug.ok or dug.moves > factor * assignment_lower_bound(p.initial, p.goal):
+        return False
+    plan.steps, plan.ok = dug.steps, True
+    plan.notes += dug.notes
+    plan.notes.append(DESCENT_DUG_NOTE)
+    return True
+
+
 def plan_complete(plan: Plan, exact_limit: int = EXACT_LIMIT) -> None:
     """Fill ``plan`` (serial, one move per step); see the module docstring.
 
@@ -900,6 +934,7 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
     walked = occ == goal
     relays: _Heuristic | None = None
     descent: _Heuristic | None = None
+    dug_descent: Plan | None = None
     walled = False
     if walked:
         first.ok = True
@@ -918,6 +953,11 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
             if descent.plan.ok:
                 plan.steps, plan.ok = descent.plan.steps, True
                 plan.notes += descent.plan.notes
+                return False
+            # Its relays are stuck: digging on from there is quick and, when short
+            # enough, kept before the relays run from the start (see DUG_EARLY).
+            dug_descent = _dug_descent(plan.planner, p, descent, DUG_EARLY_CALLS)
+            if _dug_kept(plan, dug_descent, DUG_EARLY):
                 return False
         forward = Plan(plan.planner, p)
         relays = _Heuristic(forward, advance=advance)
@@ -938,20 +978,15 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
     if front is not None and front.ok and (
             not forward.ok or _shortened_difference(front, forward) <= 0):
         forward = front
-    # Where the relays are stuck too, digging on from where the descent stopped is
-    # quick (0.1-5 s) and, when short enough, kept at once: what runs below takes 10-40 s
-    # more, and beat 1 of the 11 plans kept so on scrambled seeds 0-59 (see DUG_KEEP).
-    dug_descent: Plan | None = None
+    # Where the relays are stuck too, the descent's dig is kept if short enough: what
+    # runs below takes 10-40 s more, and beat 1 of the 11 plans kept so on scrambled
+    # seeds 0-59 (see DUG_KEEP).
     if not forward.ok and descent is not None:
-        dug_descent = Plan(plan.planner, p)
-        dug_descent.notes = list(descent.plan.notes)
-        descent.dig_on(dug_descent, HOLE_CALLS_LARGE)
-        shorten(dug_descent)
-        bound = assignment_lower_bound(p.initial, p.goal)
-        if dug_descent.ok and dug_descent.moves <= DUG_KEEP * bound:
-            plan.steps, plan.ok = dug_descent.steps, True
-            plan.notes += dug_descent.notes
-            plan.notes.append(DESCENT_DUG_NOTE)
+        assert dug_descent is not None
+        if not dug_descent.ok:          # it stopped early: dig on with the rest
+            dug_descent = _dug_descent(plan.planner, p, descent,
+                                       HOLE_CALLS_LARGE - DUG_EARLY_CALLS)
+        if _dug_kept(plan, dug_descent, DUG_KEEP):
             return False
     if not forward.ok and not walled:
         backward = Plan(plan.planner, Problem(p.goal, p.initial, p.fixed, p.obstacles, p.name))

@@ -45,7 +45,7 @@ from .bounds import (assignment_cost, distance_matrix, electron_void_assignment,
                      min_cost_assignment)
 from .moves import GOAL_OFFSET, Path, can_move, disk, enterable, is_cut, lone_steps, ring2
 from .rules import Coord, MoveRule, hex_distance, neighbours_xy
-from .shorten import _still_legal
+from .shorten import moved, still_legal
 from .windows import _window_search, local_exchange
 
 #: Window of an escape search: radius around an electron or void, and configurations
@@ -337,10 +337,7 @@ def _fill(occ: set[Coord], goal: set[Coord], fixed: Coord, obstacles: set[Coord]
         found = local_exchange(occ, goal, fixed, obstacles, v, radius, budget, memo)
         if found is None:
             continue
-        after = set(occ)
-        for m, b in _hops(found):
-            after.discard(m)
-            after.add(b)
+        after = moved(occ, _hops(found))
         if assignment_cost(after - goal, goal - after) < bound.cost:
             return found
     return None
@@ -374,7 +371,7 @@ def _freezes_electron(before: frozenset[Coord] | set[Coord],
 
 def _playable(occ: set[Coord], path: Path, fixed: Coord, obstacles: set[Coord]) -> bool:
     """Whether every rotation of ``path`` is legal in turn from ``occ`` (left unchanged)."""
-    return _still_legal(occ, _hops(path), fixed, obstacles)
+    return still_legal(occ, _hops(path), fixed, obstacles)
 
 
 def _hops(path: Path) -> list[tuple[Coord, Coord]]:

@@ -171,14 +171,14 @@ def drop_round_trips(initial: set[Coord], hops: list[Hop], fixed: Coord,
         mine = set(trip)
         # Lazily: most checks fail within a few moves of spans of hundreds.
         between = (hops[k] for k in range(i + 1, end) if not gone[k] and k not in mine)
-        if _still_legal(occ, between, fixed, obstacles):
+        if still_legal(occ, between, fixed, obstacles):
             for k in trip:
                 if not gone[k]:
                     gone[k], gone_end[k] = True, end
     return [h for h, g in zip(hops, gone) if not g]
 
 
-def _still_legal(occ: set[Coord], hops: Iterable[Hop], fixed: Coord,
+def still_legal(occ: set[Coord], hops: Iterable[Hop], fixed: Coord,
                  obstacles: set[Coord] | frozenset[Coord]) -> bool:
     """Whether ``hops`` can all be made, in order, from ``occ`` (left unchanged)."""
     made: list[Hop] = []
@@ -237,7 +237,7 @@ def replan_windows(initial: set[Coord], hops: list[Hop], fixed: Coord,
         new = None
         if len(inside) >= 2 and not set(inside) <= failed:
             start = frozenset(occ & window)
-            target = frozenset(_moved(start, [hops[j] for j in inside]))
+            target = frozenset(moved(start, [hops[j] for j in inside]))
             if estimate(start, target) < len(inside):
                 found, expanded = best_first(
                     start, window_moves(window, occ - window, fixed, obstacles),
@@ -253,7 +253,7 @@ def replan_windows(initial: set[Coord], hops: list[Hop], fixed: Coord,
                            for (before, m, _), after in zip(found, confs[1:])]
         # The window's moves were searched with the rest still; the others now come
         # after them, and each must still be legal.
-        if new is not None and _still_legal(_moved(occ, new), others, fixed, obstacles):
+        if new is not None and still_legal(moved(occ, new), others, fixed, obstacles):
             hops[i:k] = new + others
             failed = set()
             continue
@@ -264,7 +264,7 @@ def replan_windows(initial: set[Coord], hops: list[Hop], fixed: Coord,
     return hops, allowance
 
 
-def _moved(occ: set[Coord] | frozenset[Coord], hops: list[Hop]) -> set[Coord]:
+def moved(occ: set[Coord] | frozenset[Coord], hops: list[Hop]) -> set[Coord]:
     """``occ`` after ``hops`` (a copy)."""
     out = set(occ)
     for a, b in hops:
@@ -331,7 +331,7 @@ def _replan_rounds(initial: set[Coord], hops: list[Hop], fixed: Coord,
     so it meets other stretches: a round backwards saves more than a second round
     forwards, in the same time."""
     allowance = WINDOWS_ALLOWANCE
-    final = _moved(initial, hops)
+    final = moved(initial, hops)
     for round_ in range(WINDOW_ROUNDS):
         n = len(hops)
         backwards = round_ % 2 == 1

@@ -32,10 +32,11 @@ last the goal is the start scrambled:
   ``complete`` first descends the bound (moves that each lower it by one, window
   escapes where none does, fills of the last voids in wider windows) and the relays
   finish from there: seeds 0, 2 and 3 at 1.57x, 1.53x and 1.49x the bound once
-  shortened and re-planned in windows, in 7-8 s (seed 2's descent reaches the goal with
+  shortened and re-planned in windows, in 5-7 s (seed 2's descent reaches the goal with
   three fills; without them it stopped short, and the relays from where phase 1 stopped
-  took it to 1.73x in 12 s); on seed 1 every relay run stops, and digging on from where
-  the descent stopped takes it to 1.58x (12 s).
+  took it to 1.73x in 12 s); on seed 1 the descent's relays stop, and two digs from
+  there take it to 1.58x in 8 s (12 s when the relays from the start and from where
+  phase 1 stopped, which stop too, ran first).
 
 Each instance also gets a *walk reference*
 (:func:`planner_svc.bounds.walk_reference`): the same assignment with each module's cost

@@ -160,3 +160,25 @@ def test_stuck_relays_keep_the_descents_digs(monkeypatch):
     assert plan.ok and complete.DESCENT_DUG_NOTE in plan.notes
     assert not others
     assert plan.moves <= complete.DUG_KEEP * assignment_lower_bound(*_cells(problem))
+
+
+@pytest.mark.slow
+def test_a_short_dig_from_the_descent_is_kept_before_other_relays(monkeypatch):
+    # Scrambled 400 seed 13: the descent's relays stop. A few digs from there reach the
+    # goal within DUG_EARLY times the bound, so that plan is kept and no relays run from
+    # the start (with DUG_EARLY = 0 they do, and the plan comes from them).
+    problem = random_scrambled_problem(400, 13)
+    starts = []
+    init = complete._Heuristic.__init__
+
+    def recording(self, plan, *args, **kwargs):
+        starts.append(kwargs.get("start"))
+        init(self, plan, *args, **kwargs)
+
+    monkeypatch.setattr(complete._Heuristic, "__init__", recording)
+    plan = Plan("complete", problem)
+    complete.plan_complete(plan)
+    validate(plan)
+    assert plan.ok and complete.DESCENT_DUG_NOTE in plan.notes
+    assert len(starts) == 1 and starts[0] is not None     # the descent's relays only
+    assert plan.moves <= complete.DUG_EARLY * assignment_lower_bound(*_cells(problem))
