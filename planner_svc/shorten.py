@@ -179,7 +179,7 @@ def drop_round_trips(initial: set[Coord], hops: list[Hop], fixed: Coord,
 
 
 def still_legal(occ: set[Coord], hops: Iterable[Hop], fixed: Coord,
-                 obstacles: set[Coord] | frozenset[Coord]) -> bool:
+                obstacles: set[Coord] | frozenset[Coord]) -> bool:
     """Whether ``hops`` can all be made, in order, from ``occ`` (left unchanged)."""
     made: list[Hop] = []
     ok = True
