@@ -18,6 +18,19 @@ def _cells(problem):
     return {xy(c) for c in problem.initial}, {xy(c) for c in problem.goal}
 
 
+def _relays_made(monkeypatch):
+    """Record every relay run ``complete`` makes: (its plan, its keyword arguments)."""
+    made = []
+    init = complete._Heuristic.__init__
+
+    def recording(self, plan, *args, **kwargs):
+        made.append((plan, kwargs))
+        init(self, plan, *args, **kwargs)
+
+    monkeypatch.setattr(complete._Heuristic, "__init__", recording)
+    return made
+
+
 def test_a_change_of_minus_one_leaves_an_optimal_assignment():
     # Every legal move of a few scrambled blobs: where the cheapest exchange lowers the
     # assignment's cost by one, the updated assignment is a true minimum (the bound of
@@ -144,21 +157,16 @@ def test_stuck_relays_keep_the_descents_digs(monkeypatch):
     # reaches the goal within DUG_KEEP times the bound, so that plan is kept at once:
     # neither the reverse problem nor the last resort's other tries run.
     problem = random_scrambled_problem(1000, 18)
-    others = []             # the reverse problem's relays, pinned relays, smoothed shapes
-    init = complete._Heuristic.__init__
-
-    def recording(self, plan, *args, **kwargs):
-        if plan.problem.initial == problem.goal or kwargs.get("pins"):
-            others.append(plan)
-        init(self, plan, *args, **kwargs)
-
-    monkeypatch.setattr(complete._Heuristic, "__init__", recording)
-    monkeypatch.setattr(complete, "smoothed_plan", lambda *a, **k: others.append(a))
+    made = _relays_made(monkeypatch)
+    smoothed = []
+    monkeypatch.setattr(complete, "smoothed_plan", lambda *a, **k: smoothed.append(a))
     plan = Plan("complete", problem)
     complete.plan_complete(plan)
     validate(plan)
     assert plan.ok and complete.DESCENT_DUG_NOTE in plan.notes
-    assert not others
+    # Neither the reverse problem's relays, nor pinned relays, nor smoothed shapes.
+    assert not [p for p, kw in made if p.problem.initial == problem.goal or kw.get("pins")]
+    assert not smoothed
     assert plan.moves <= complete.DUG_KEEP * assignment_lower_bound(*_cells(problem))
 
 
@@ -168,17 +176,11 @@ def test_a_short_dig_from_the_descent_is_kept_before_other_relays(monkeypatch):
     # goal within DUG_EARLY times the bound, so that plan is kept and no relays run from
     # the start (with DUG_EARLY = 0 they do, and the plan comes from them).
     problem = random_scrambled_problem(400, 13)
-    starts = []
-    init = complete._Heuristic.__init__
-
-    def recording(self, plan, *args, **kwargs):
-        starts.append(kwargs.get("start"))
-        init(self, plan, *args, **kwargs)
-
-    monkeypatch.setattr(complete._Heuristic, "__init__", recording)
+    made = _relays_made(monkeypatch)
     plan = Plan("complete", problem)
     complete.plan_complete(plan)
     validate(plan)
     assert plan.ok and complete.DESCENT_DUG_NOTE in plan.notes
+    starts = [kw.get("start") for _, kw in made]
     assert len(starts) == 1 and starts[0] is not None     # the descent's relays only
     assert plan.moves <= complete.DUG_EARLY * assignment_lower_bound(*_cells(problem))
