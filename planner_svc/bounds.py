@@ -54,6 +54,7 @@ import numpy as np
 
 from bus.lattice import Cell
 
+from .moves import is_cut, lone_steps
 from .plan import Problem
 from .rules import Coord, hex_distance, neighbours_xy, occupancy_graph, xy
 
@@ -410,9 +411,6 @@ def scramble(cells: set[Coord], moves: int, rng: random.Random, fixed: Coord = (
     most three occupied neighbours (others cannot move), not ``fixed``, not a cut
     vertex, by a random Table 4-3 row. Returns the final cells and the rotations
     ``(cell before, rule)`` in order."""
-    # complete imports this module, so its move primitives are imported here.
-    from .complete import is_cut, lone_steps
-
     occ = set(cells)
     order = sorted(occ)                 # random picks in O(1); a move replaces its entry
     path: list[tuple[Coord, object]] = []

@@ -6,7 +6,12 @@ import random
 
 import pytest
 
-from planner_svc import complete, planners, windows
+from planner_svc import planners, windows
+from planner_svc.complete import digging, phases, smoothing
+from planner_svc.complete.relays import _Heuristic, _Looks
+from planner_svc.complete.steps import play, reverse_steps
+from planner_svc.complete.walks import RELAY_LIMIT, _FrontWalk, astar_walk, is_cut_bounded
+from planner_svc.moves import bfs, can_move, disk, enterable, is_cut, lone_steps, ring2, walk
 from planner_svc.bounds import (assignment_lower_bound, random_blob, random_convex_problem,
                                 random_hex_convex, random_problem, random_scrambled_problem,
                                 random_sparse_problem, random_sparse_tree, scramble,
@@ -30,13 +35,13 @@ def test_is_cut_matches_the_articulation_points():
     # (a cut), and the same with the tail looped back too (no cut).
     loop = {(0, 0), (-1, 1), (-1, 2), (0, 2), (1, 1), (1, 0), (0, -1), (0, -2)}
     looped = loop - {(0, -2)} | {(1, -2), (2, -2), (2, -1), (2, 0)}
-    assert complete.is_cut(loop, (0, 0)) and not complete.is_cut(looped, (0, 0))
+    assert is_cut(loop, (0, 0)) and not is_cut(looped, (0, 0))
     shapes = _blobs(40, [3, 8, 20, 60]) + _blobs(2, [400]) + [
         random_sparse_tree(200, random.Random(4)), loop, looped,
         {xy(c) for c in random_scrambled_problem(300, 1).goal}]
     for cells in shapes:
         cut = articulation_cells(cells)
-        assert {c for c in cells if complete.is_cut(cells, c)} == cut
+        assert {c for c in cells if is_cut(cells, c)} == cut
 
 
 def test_lone_steps_agree_with_the_move_rule():
@@ -52,7 +57,7 @@ def test_lone_steps_agree_with_the_move_rule():
         blocked = lambda c: c in rest or c in obstacles  # noqa: E731
         expected = [(rule, (g[0], g[1])) for rule, s, e, g in RULE_OFFSETS
                     if g not in skip and _rule_violation(rest, blocked, (0, 0), s, e, g, ()) is None]
-        assert list(complete.lone_steps(rest, (0, 0), obstacles, skip)) == expected
+        assert list(lone_steps(rest, (0, 0), obstacles, skip)) == expected
         moving += bool(expected)
     assert 300 < moving < 2900
 
@@ -64,13 +69,13 @@ def test_window_cut_test_agrees_with_the_plain_one():
     checked = 0
     for cells in _blobs(6, [150, 300]):
         for _ in range(20):
-            window = set(complete.disk(rng.choice(sorted(cells)), 3))
+            window = set(disk(rng.choice(sorted(cells)), 3))
             outside = cells - window
             conf = frozenset((cells & window) ^ {c for c in window if rng.random() < 0.15})
             cut = windows._window_cuts(window, outside)
             full = outside | conf
             for m in conf:
-                assert cut(conf, full, m) == complete.is_cut(full, m), m
+                assert cut(conf, full, m) == is_cut(full, m), m
                 checked += 1
     assert checked > 2000
 
@@ -84,7 +89,7 @@ def test_enterable_matches_the_move_rule():
         for v in sorted(rim):
             legal = any(find_move(cells | {m}, m, v, fixed=(99, 99)) is not None
                         for m in neighbours_xy(v) if m not in cells)
-            assert complete.enterable(cells, v) == legal, v
+            assert enterable(cells, v) == legal, v
             checked += 1
     assert checked > 200
 
@@ -93,15 +98,15 @@ def test_walk_is_legal_and_ends_on_the_target():
     rng = random.Random(3)
     walks = 0
     for cells in _blobs(20, [10, 30]):
-        mobile = [c for c in sorted(cells) if c != (0, 0) and not complete.is_cut(cells, c)
-                  and complete.can_move(cells, c, set())]
+        mobile = [c for c in sorted(cells) if c != (0, 0) and not is_cut(cells, c)
+                  and can_move(cells, c, set())]
         if not mobile:
             continue
         m = rng.choice(mobile)
         rest = cells - {m}
-        region = complete.bfs(rest, m, set())
+        region = bfs(rest, m, set())
         target = max(region, key=lambda c: (region[c][0], c))
-        path = complete.walk(rest, m, {target}, set())
+        path = walk(rest, m, {target}, set())
         assert path is not None and len(path) == region[target][0]
         occ = set(cells)
         steps = []
@@ -142,7 +147,7 @@ def test_sealed_voids_are_dug_open_and_filled(seed):
     # digs a crater to it, fills it and refills the crater (planned peels, reversed).
     problem = random_problem(30, seed)
     stuck = Plan("complete", problem)
-    complete._Heuristic(stuck).run()
+    _Heuristic(stuck).run()
     assert not stuck.ok                          # the relays alone do not finish
     plan = _check(problem)
     assert any("holes dug" in n for n in plan.notes)
@@ -153,12 +158,12 @@ def test_digging_on_from_where_the_relays_stopped_is_the_run_that_digs_from_the_
     # 1000 modules: 30 s); the plan must be the one a digging run makes from the start.
     problem = random_problem(30, 7)
     stopped = Plan("complete", problem)
-    relays = complete._Heuristic(stopped)
+    relays = _Heuristic(stopped)
     relays.run()
     assert not stopped.ok
     on, fresh = Plan("complete", problem), Plan("complete", problem)
     relays.dig_on(on)
-    complete._Heuristic(fresh, holes=True).run()
+    _Heuristic(fresh, holes=True).run()
     assert on.ok and on.steps == fresh.steps
     assert len(stopped.steps) < len(on.steps)      # the stopped plan is left as it was
 
@@ -170,10 +175,10 @@ def test_under_a_flat_face_only_the_ends_of_a_row_move():
     block = {(x, y) for x in range(width) for y in range(height)}
     occ = block - {(x, height - 1) for x in range(width)}
     row = [(x, height - 2) for x in range(width)]
-    assert [c for c in row if complete.can_move(occ, c, set())] == [row[0], row[-1]]
+    assert [c for c in row if can_move(occ, c, set())] == [row[0], row[-1]]
     # Eating the row from one end frees each next module in turn, and only that one.
     occ.discard(row[0])
-    assert [c for c in row[1:] if complete.can_move(occ, c, set())] == [row[1], row[-1]]
+    assert [c for c in row[1:] if can_move(occ, c, set())] == [row[1], row[-1]]
 
 
 def test_peel_plan_digs_every_hole_cell_out():
@@ -183,7 +188,7 @@ def test_peel_plan_digs_every_hole_cell_out():
     hole = {(1, 1), (2, 1)}
     occ = cells - hole
     problem = Problem.of(occ | {(5, 0), (6, -1)}, cells, (0, 0))
-    h = complete._Heuristic(Plan("complete", problem), holes=True)
+    h = _Heuristic(Plan("complete", problem), holes=True)
     sim = occ | {(5, 0), (6, -1)} | hole
     peels = h._peel_plan(hole, sim)
     assert peels and hole <= {k for k, _ in peels}
@@ -195,7 +200,7 @@ def _assert_walks(peels, cur, goal):
     the structure stays connected."""
     for k, park in peels:
         assert k in cur and park not in cur and park not in goal
-        assert complete.walk(cur - {k}, k, {park}, set()) is not None
+        assert walk(cur - {k}, k, {park}, set()) is not None
         cur = (cur - {k}) | {park}
         assert is_connected(cur)
 
@@ -212,9 +217,9 @@ def test_electron_in_a_bays_flat_ceiling_is_peeled_out_from_the_walls():
     e = (9, 3)                                  # mid-ceiling: four neighbours
     goal = (cells - {e}) | {(9, 8)}
     problem = Problem.of(cells, goal, (0, 7))
-    h = complete._Heuristic(Plan("complete", problem), holes=True)
+    h = _Heuristic(Plan("complete", problem), holes=True)
     # The crater, a ball in the bay, ends in the flat ceiling: nothing in it can move.
-    assert h._peel_crater(complete._Peel(h, set(), set(cells), {e})) is None
+    assert h._peel_crater(digging._Peel(h, set(), set(cells), {e})) is None
     peels = h._peel_plan(set(), must={e})
     assert peels and peels[-1][0] == e
     _assert_walks(peels, cells, goal)
@@ -243,7 +248,7 @@ def test_unreachable_small_instance_is_proven_unreachable():
 def test_reverse_steps_undo_a_plan():
     problem = random_problem(10, 4)
     plan = _check(problem)
-    back = complete.reverse_steps(plan, problem)
+    back = reverse_steps(plan, problem)
     assert len(back) == len(plan.steps)
     assert validate(back, problem.goal, problem.initial, problem.fixed) == problem.initial
 
@@ -259,8 +264,8 @@ def test_local_repair_moves_a_hole_to_the_surface():
     occ.add(extra)
     goal.discard((-3, 3))
     assert is_connected(occ)
-    assert not complete.enterable(occ, hole)
-    path = complete.local_repair(occ, goal, (0, 0), set(), hole, 3, 3000)
+    assert not enterable(occ, hole)
+    path = windows.local_repair(occ, goal, (0, 0), set(), hole, 3, 3000)
     assert path
     steps, cur = [], set(occ)
     for cell, rule in path:
@@ -290,20 +295,20 @@ def test_is_cut_bounded_never_misses_a_cut_vertex():
         cut = articulation_cells(cells)
         for c in cells:
             if c in cut:
-                assert complete.is_cut_bounded(cells, c, limit=10)
-            assert complete.is_cut_bounded(cells, c, limit=10 ** 6) == (c in cut)
+                assert is_cut_bounded(cells, c, limit=10)
+            assert is_cut_bounded(cells, c, limit=10 ** 6) == (c in cut)
 
 
 def test_astar_walk_is_as_short_as_the_breadth_first_walk():
     rng = random.Random(11)
     for s in range(6):
         cells = random_sparse_tree(40, random.Random(s))
-        leaves = [c for c in sorted(cells) if c != (0, 0) and not complete.is_cut(cells, c)
-                  and complete.can_move(cells, c, set())]
+        leaves = [c for c in sorted(cells) if c != (0, 0) and not is_cut(cells, c)
+                  and can_move(cells, c, set())]
         m = rng.choice(leaves)
-        region = complete.bfs(cells - {m}, m, set())
+        region = bfs(cells - {m}, m, set())
         for target in sorted(region)[:15]:
-            path = complete.astar_walk(cells - {m}, m, target, set(), limit=10 ** 5)
+            path = astar_walk(cells - {m}, m, target, set(), limit=10 ** 5)
             assert path is not None and len(path) == region[target][0]
 
 
@@ -436,7 +441,7 @@ def test_front_walk_tries_another_electron_when_a_walk_fails():
     # walled in behind them remain.
     p = random_problem(100, 0)
     plan = Plan("complete", p)
-    front = complete._FrontWalk(plan, {xy(c) for c in p.initial})
+    front = _FrontWalk(plan, {xy(c) for c in p.initial})
     assert not front.run()
     goal = {xy(c) for c in p.goal}
     assert len(goal - front.occ) <= 3
@@ -446,9 +451,9 @@ def test_front_walk_tries_another_electron_when_a_walk_fails():
 def test_smooth_fills_notches_with_legal_moves():
     blob = random_blob(100, random.Random(3))
     occ = set(blob)
-    before = complete.notches(occ)
-    steps = complete.smooth(occ, (0, 0), set())
-    assert steps and len(complete.notches(occ)) < len(before)
+    before = smoothing.notches(occ)
+    steps = smoothing.smooth(occ, (0, 0), set())
+    assert steps and len(smoothing.notches(occ)) < len(before)
     # Every move a legal rotation of the connected structure, ending where smooth says.
     assert {xy(c) for c in validate(steps, blob, None, (0, 0))} == occ
     assert len(occ) == len(blob) and (0, 0) in occ
@@ -462,8 +467,8 @@ def test_smoothed_plan_reaches_the_goal(seed, large):
     # ``large``: as on fleets over SMOOTH_LIMIT, with advances and the larger dig budget.
     problem = random_problem(30, seed)
     plan = Plan("complete", problem)
-    assert complete.smoothed_plan(plan, advance=large, hole_calls=complete.HOLE_CALLS_LARGE
-                                  if large else complete.HOLE_CALLS)
+    assert smoothing.smoothed_plan(plan, advance=large, hole_calls=phases.HOLE_CALLS_LARGE
+                                  if large else digging.HOLE_CALLS)
     validate(plan)
 
 
@@ -471,7 +476,7 @@ def test_scrambled_goals_are_reachable_by_construction():
     start = random_blob(60, random.Random(5))
     goal, path = scramble(start, 120, random.Random(6))
     occ = set(start)
-    steps = complete.play(occ, path)
+    steps = play(occ, path)
     assert occ == goal and goal != start
     validate(steps, start, goal, (0, 0))        # every rotation legal, structure connected
 
@@ -502,11 +507,11 @@ def _one_module_moved(rng, count, apart):
 def test_local_exchange_plans_are_legal_and_trade_one_electron_for_one_void():
     found = 0
     for occ, e, v, goal in _one_module_moved(random.Random(3), 40, lambda d: 2 <= d <= 4):
-        path = complete.local_exchange(occ, goal, (0, 0), set(), v, 4, 1000)
+        path = windows.local_exchange(occ, goal, (0, 0), set(), v, 4, 1000)
         if path is None:
             continue
         cur = set(occ)
-        steps = complete.play(cur, path)
+        steps = play(cur, path)
         validate(steps, occ, goal, (0, 0))      # legal, connected, and exactly the goal
         found += 1
     assert found >= 10
@@ -533,27 +538,27 @@ def test_walk_reference_counts_paths_through_start_and_goal_cells():
 # --- advances (electrons brought nearer far voids along the surface) ---------------------------
 def test_surface_field_goes_around_the_structure():
     wall = {(x, 0) for x in range(-5, 6)}
-    field = complete.surface_field(wall, {(0, 1)})
-    dist = complete.surface_distance(field)
+    field = windows.surface_field(wall, {(0, 1)})
+    dist = windows.surface_distance(field)
     assert field[(0, 1)] == 0
     assert all(any(n in wall for n in neighbours_xy(c)) for c in field)   # on the surface
     # Two cells apart through the wall, around one of its ends along the surface.
     assert hex_distance((0, -1), (0, 1)) == 2 and field[(0, -1)] >= 10
     assert dist((0, 0)) == 1                   # a module counts from its free side
-    assert dist((40, 40)) == complete.FAR
+    assert dist((40, 40)) == windows.FAR
 
 
 def test_local_advance_plans_are_legal_and_bring_electrons_nearer():
     found = 0
     for occ, e, v, goal in _one_module_moved(random.Random(11), 40, lambda d: d >= 6):
-        dist = complete.surface_distance(complete.surface_field(occ, {v}))
-        if dist(e) >= complete.FAR:
+        dist = windows.surface_distance(windows.surface_field(occ, {v}))
+        if dist(e) >= windows.FAR:
             continue
-        path = complete.local_advance(occ, goal, (0, 0), set(), e, 4, 1500, dist, set())
+        path = windows.local_advance(occ, goal, (0, 0), set(), e, 4, 1500, dist, set())
         if path is None:
             continue
         cur = set(occ)
-        steps = complete.play(cur, path)
+        steps = play(cur, path)
         validate(steps, occ, None, (0, 0))              # every rotation legal, connected
         assert cur & goal == occ & goal                 # no goal cell emptied
         (moved,) = cur - goal
@@ -576,7 +581,7 @@ def test_walled_in_electrons_are_dug_out_once_per_cell_while_no_void_fills():
     centre, spare = (1, 1), (4, -1)
     ring = set(neighbours_xy(centre))
     problem = Problem.of(ring | {centre}, ring | {(3, 1)}, (1, 0))
-    h = complete._Heuristic(Plan("complete", problem), holes=True, hole_calls=50)
+    h = _Heuristic(Plan("complete", problem), holes=True, hole_calls=50)
     digs = []
 
     def dig(hole, must=frozenset()):
@@ -607,9 +612,9 @@ def test_a_hole_deep_under_a_flat_face_is_reached_by_a_wider_crater():
     occ = (cells - hole) | extra
     problem = Problem.of(occ, cells, (0, 0))
     plan = Plan("complete", problem)
-    h = complete._Heuristic(plan, holes=True)
-    width, deep = complete.HOLE_CRATERS[0]
-    assert h._peel_crater(complete._Peel(h, hole, occ | hole, set()), width, deep) is None
+    h = _Heuristic(plan, holes=True)
+    width, deep = digging.HOLE_CRATERS[0]
+    assert h._peel_crater(digging._Peel(h, hole, occ | hole, set()), width, deep) is None
     plans = list(h._peel_plans(hole))
     assert len(plans) >= 2
     for peels in plans:
@@ -641,8 +646,8 @@ def test_a_lake_too_big_to_dig_is_opened_to_the_outside():
     occ = (cells - lake) | electrons
     problem = Problem.of(occ, cells, (r, 0))
     plan = Plan("complete", problem)
-    h = complete._Heuristic(plan, holes=True)
-    assert len(lake) > complete.HOLE_MAX
+    h = _Heuristic(plan, holes=True)
+    assert len(lake) > digging.HOLE_MAX
     assert not lake & _free_reach(h.occ, (0, 20))              # sealed at first
     assert h._open_lake(lake)
     assert lake <= _free_reach(h.occ, (0, 20))                 # open now
@@ -659,11 +664,11 @@ def test_a_wedge_peels_farthest_first_whatever_the_block(side):
     # Taken away in wedge order, every module of a solid block can rotate and cuts
     # nothing when its turn comes: its neighbours left lie in one arc of at most three.
     occ = _hexagon(6)
-    inside, level, order = complete.wedge({(1, 2)}, occ, side)
+    inside, level, order = digging.wedge({(1, 2)}, occ, side)
     assert order[-1] == (1, 2) and all(inside(c) for c in order)
     assert [level(c) for c in order] == sorted((level(c) for c in order), reverse=True)
     for c in order:
-        assert complete.can_move(occ, c, set()) and not complete.is_cut(occ, c), c
+        assert can_move(occ, c, set()) and not is_cut(occ, c), c
         occ.discard(c)
 
 
@@ -676,7 +681,7 @@ def test_a_walled_in_electron_is_freed_by_emptying_a_wedge_and_the_wedge_refille
     goal = (cells - {e}) | {(6, -5)}
     problem = Problem.of(cells, goal, (0, -5))
     plan = Plan("complete", problem)
-    h = complete._Heuristic(plan, holes=True)
+    h = _Heuristic(plan, holes=True)
     assert not any(n not in cells for n in neighbours_xy(e))
     assert h._clear_wedge(e) and e not in h.occ and h.wedge_fill
     levels = h.wedge_fill
@@ -705,28 +710,28 @@ def test_relays_that_wall_voids_in_go_straight_to_digging(monkeypatch, few_voids
     # fewer allowed the voids are walled in: neither the relays from where phase 1
     # stopped nor those on the reverse problem run (on Eden 1000 they never finish),
     # and the last resort still reaches the goal. With more allowed, both run.
-    monkeypatch.setattr(complete, "SMOOTH_LIMIT", 10)
-    monkeypatch.setattr(complete, "FEW_VOIDS", few_voids)
-    monkeypatch.setattr(complete, "_local", lambda problem: False)     # no bound descent
+    monkeypatch.setattr(phases, "SMOOTH_LIMIT", 10)
+    monkeypatch.setattr(phases, "FEW_VOIDS", few_voids)
+    monkeypatch.setattr(phases, "_local", lambda problem: False)     # no bound descent
     p = random_problem(20, 7)
     runs = []
-    init = complete._Heuristic.__init__
+    init = _Heuristic.__init__
 
     def spy(self, plan, *args, **kwargs):
         runs.append("reverse" if plan.problem.initial == p.goal else
                     "phase 1" if kwargs.get("start") is not None and not kwargs.get("holes")
                     else "other")
         init(self, plan, *args, **kwargs)
-    monkeypatch.setattr(complete._Heuristic, "__init__", spy)
+    monkeypatch.setattr(_Heuristic, "__init__", spy)
     plan = Plan("complete", p)
-    complete.plan_complete(plan)
+    phases.plan_complete(plan)
     assert plan.ok
     validate(plan)
     assert ("reverse" in runs) is not walled and ("phase 1" in runs) is not walled
     if walled:      # shortened before it is chosen, the plan says where it comes from, and
         # what re-planning in windows saved after that (last)
         assert plan.notes[-1].startswith(WINDOWS_NOTE)
-        assert plan.notes[-2] in (complete.DUG_NOTE, complete.SMOOTHED_NOTE)
+        assert plan.notes[-2] in (phases.DUG_NOTE, phases.SMOOTHED_NOTE)
         assert plan.notes[-3].startswith("shortened by")
 
 
@@ -736,11 +741,11 @@ def test_pinned_electrons_make_the_voids_next_to_them_wait():
     # void next to it waits, so the first relay fills another void; without, the relay
     # fills that one first and walls it in.
     p = random_scrambled_problem(8, 12)
-    plain = complete._Heuristic(Plan("complete", p))
-    pinned = complete._Heuristic(Plan("complete", p), pins=True)
+    plain = _Heuristic(Plan("complete", p))
+    pinned = _Heuristic(Plan("complete", p), pins=True)
     goal, occ = pinned.goal, set(pinned.occ)
     assert {e for e in occ - goal if pinned._pinned(e)} == {(0, -1)}
-    assert not complete.can_move(goal | {(0, -1)}, (0, -1), set())
+    assert not can_move(goal | {(0, -1)}, (0, -1), set())
     wall = {n for n in neighbours_xy((0, -1)) if n in goal and n not in occ}
     assert wall == {(-1, 0)}
     assert pinned._waiting() == wall and not plain._waiting()
@@ -755,22 +760,22 @@ def test_pinned_electrons_make_the_voids_next_to_them_wait():
 def test_the_last_resort_also_digs_from_relays_run_with_pinned_electrons_first(monkeypatch):
     # Eden 30 seed 76, counted as a large fleet: every relay run stops; run again with
     # pinned electrons first, the relays finish, in fewer moves than any plan without.
-    monkeypatch.setattr(complete, "SMOOTH_LIMIT", 10)
-    monkeypatch.setattr(complete, "_local", lambda problem: False)     # no bound descent
+    monkeypatch.setattr(phases, "SMOOTH_LIMIT", 10)
+    monkeypatch.setattr(phases, "_local", lambda problem: False)     # no bound descent
     p = random_problem(30, 76)
     plans = []
     for pins in (True, False):
         if not pins:
-            monkeypatch.setattr(complete._Heuristic, "_pinned", lambda self, e: False)
+            monkeypatch.setattr(_Heuristic, "_pinned", lambda self, e: False)
         plan = Plan("complete", p)
-        complete.plan_complete(plan)
+        phases.plan_complete(plan)
         assert plan.ok
         validate(plan)
         plans.append(plan)
     with_pins, without = plans
     assert [n for n in with_pins.notes if not n.startswith(WINDOWS_NOTE)][-1] == (
-        complete.PINNED_NOTE)
-    assert complete.PINNED_NOTE not in without.notes
+        phases.PINNED_NOTE)
+    assert phases.PINNED_NOTE not in without.notes
     assert with_pins.moves < without.moves
 
 
@@ -782,7 +787,7 @@ def test_window_successors_match_a_search_from_scratch():
     rng = random.Random(9)
     checked = 0
     for cells in _blobs(3, [120]):
-        window = set(complete.disk(rng.choice(sorted(cells)), 3))
+        window = set(disk(rng.choice(sorted(cells)), 3))
         outside = cells - window
         successors = windows.window_moves(window, outside, (0, 0), set())
 
@@ -790,8 +795,8 @@ def test_window_successors_match_a_search_from_scratch():
             full = outside | conf
             out = []
             for m in conf:
-                steps = [(r, d) for r, d in complete.lone_steps(full, m, set()) if d in window]
-                if m != (0, 0) and steps and not complete.is_cut(full, m):
+                steps = [(r, d) for r, d in lone_steps(full, m, set()) if d in window]
+                if m != (0, 0) and steps and not is_cut(full, m):
                     out += [(m, r, (conf - {m}) | {d}) for r, d in steps]
             return out
 
@@ -816,17 +821,17 @@ def test_window_searches_are_remembered_by_what_decides_them():
     # but not for the closed ring: far connectivity is part of what decides a search.
     ring = {(x, y) for x in range(-8, 9) for y in range(-8, 9) if hex_distance((0, 0), (x, y)) == 8}
     corner = (8, 0)
-    (_, out), *_ = complete.lone_steps(ring - {corner}, corner, set())
+    (_, out), *_ = lone_steps(ring - {corner}, corner, set())
     goal = ring - {corner} | {out}
     kept: dict = {}
 
     def exchange(occ, memo):
-        return complete.local_exchange(occ, goal & occ | {out}, (0, 0), set(), corner, 2, 300, memo)
+        return windows.local_exchange(occ, goal & occ | {out}, (0, 0), set(), corner, 2, 300, memo)
 
     assert exchange(ring - {(-8, 0)}, kept) is None and len(kept) == 1
     assert exchange(ring - {(-8, 3)}, kept) is None and len(kept) == 1
     assert exchange(ring - {(-8, 3)}, None) is None
-    found = [(corner, next(r for r, d in complete.lone_steps(ring - {corner}, corner, set())
+    found = [(corner, next(r for r, d in lone_steps(ring - {corner}, corner, set())
                            if d == out))]
     assert exchange(ring, kept) == found and len(kept) == 2
     # A path found is kept too (smoothing asks again for the same notches).
@@ -838,17 +843,17 @@ def test_window_searches_are_remembered_by_what_decides_them():
         kept = {}
         for _ in range(12):
             target = rng.choice(sorted(cells))
-            if complete.local_repair(cells, cells - {target}, (0, 0), set(), target, 3, 40,
+            if windows.local_repair(cells, cells - {target}, (0, 0), set(), target, 3, 40,
                                      kept) is not None:
                 continue
             # One rotation of a module far from the window.
             c, d = next((c, d) for c in sorted(cells) if hex_distance(c, target) > 6
-                        and not complete.is_cut(cells, c)
-                        for _, d in complete.lone_steps(cells - {c}, c, set()))
+                        and not is_cut(cells, c)
+                        for _, d in lone_steps(cells - {c}, c, set()))
             moved = cells - {c} | {d}
             before = len(kept)
-            memo = complete.local_repair(moved, cells - {target}, (0, 0), set(), target, 3, 40, kept)
-            fresh = complete.local_repair(moved, cells - {target}, (0, 0), set(), target, 3, 40)
+            memo = windows.local_repair(moved, cells - {target}, (0, 0), set(), target, 3, 40, kept)
+            fresh = windows.local_repair(moved, cells - {target}, (0, 0), set(), target, 3, 40)
             if len(kept) == before:
                 answered += 1
                 assert memo is None and fresh is None
@@ -861,17 +866,17 @@ def test_advance_failures_refused_by_seen_configurations_are_not_remembered():
     # window's, so it is not remembered, and with fewer seen the search succeeds again.
     p = random_problem(40, 0)
     occ, goal = {xy(c) for c in p.initial}, {xy(c) for c in p.goal}
-    dist = complete.surface_distance(complete.surface_field(occ, goal - occ))
+    dist = windows.surface_distance(windows.surface_field(occ, goal - occ))
     e = sorted(occ - goal)[0]
     seen, kept = {frozenset(occ)}, {}
 
     def advance(seen):
-        return complete.local_advance(occ, goal, xy(p.fixed), set(), e, 2, 40, dist, seen, kept)
+        return windows.local_advance(occ, goal, xy(p.fixed), set(), e, 2, 40, dist, seen, kept)
 
     path, rounds = advance(seen), 0
     while path is not None:
         after = set(occ)
-        complete.play(after, path)
+        play(after, path)
         seen.add(frozenset(after))
         path, rounds = advance(seen), rounds + 1
     assert rounds > 3 and not kept
@@ -885,21 +890,21 @@ def test_kept_reaches_and_walks_match_fresh_ones_as_the_structure_moves():
     rng = random.Random(17)
     checked = 0
     for cells in _blobs(3, [80]):
-        occ, looks = set(cells), complete._Looks()
+        occ, looks = set(cells), _Looks()
         for _ in range(40):
             looks.sync(occ)
-            mobile = [k for k in sorted(occ) if k != (0, 0) and complete.can_move(occ, k, set())
-                      and not complete.is_cut(occ, k)]
+            mobile = [k for k in sorted(occ) if k != (0, 0) and can_move(occ, k, set())
+                      and not is_cut(occ, k)]
             for k in mobile:
-                assert looks.reach(occ, k, set()) == complete.bfs(occ - {k}, k, set())
+                assert looks.reach(occ, k, set()) == bfs(occ - {k}, k, set())
                 # A module near k (asked again at later steps, as the relays do).
-                b = min((c for c in complete.ring2(k) if c in occ), default=(0, 0))
+                b = min((c for c in ring2(k) if c in occ), default=(0, 0))
                 if b != (0, 0):
-                    path = complete.walk(occ - {k, b}, k, {b}, set(), limit=complete.RELAY_LIMIT)
+                    path = walk(occ - {k, b}, k, {b}, set(), limit=RELAY_LIMIT)
                     assert looks.walk_into(occ, k, b, set()) == (path and len(path) or None)
                     checked += 1
             m = rng.choice(mobile)
-            _, g = rng.choice(list(complete.lone_steps(occ - {m}, m, set())))
+            _, g = rng.choice(list(lone_steps(occ - {m}, m, set())))
             occ.discard(m)
             occ.add(g)
     assert checked > 1000

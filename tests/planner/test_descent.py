@@ -5,7 +5,10 @@ import random
 
 import pytest
 
-from planner_svc import complete, descent
+from planner_svc import descent
+from planner_svc.complete import phases
+from planner_svc.complete.relays import _Heuristic
+from planner_svc.complete.steps import play
 from planner_svc.bounds import (assignment_lower_bound, random_blob, random_problem,
                                 random_scrambled_problem, scramble)
 from planner_svc.descent import Assignment, descend
@@ -21,13 +24,13 @@ def _cells(problem):
 def _relays_made(monkeypatch):
     """Record every relay run ``complete`` makes: (its plan, its keyword arguments)."""
     made = []
-    init = complete._Heuristic.__init__
+    init = _Heuristic.__init__
 
     def recording(self, plan, *args, **kwargs):
         made.append((plan, kwargs))
         init(self, plan, *args, **kwargs)
 
-    monkeypatch.setattr(complete._Heuristic, "__init__", recording)
+    monkeypatch.setattr(_Heuristic, "__init__", recording)
     return made
 
 
@@ -84,7 +87,7 @@ def test_descending_moves_lower_the_bound_and_seal_nothing():
             cur, bound = after, now
         assert cur == occ
         plan = Plan("descent", problem)
-        plan.steps = complete.play(set(start), path)
+        plan.steps = play(set(start), path)
         assert not plan.ok and {xy(c) for c in validate(plan)} == occ    # every move legal
     assert descending > 60
 
@@ -92,19 +95,19 @@ def test_descending_moves_lower_the_bound_and_seal_nothing():
 def test_complete_descends_on_large_scrambled_blobs_only():
     # Above SMOOTH_LIMIT modules, voids 2-3 cells from their electrons: complete descends
     # first, and its plan is legal. An Eden blob's voids are far: no descent.
-    problem = random_scrambled_problem(complete.SMOOTH_LIMIT + 10, 0)
+    problem = random_scrambled_problem(phases.SMOOTH_LIMIT + 10, 0)
     plan = Plan("complete", problem)
-    complete.plan_complete(plan)
+    phases.plan_complete(plan)
     validate(plan)
     assert any(n.startswith("bound descent:") for n in plan.notes)
-    assert complete._local(problem)
+    assert phases._local(problem)
     # The note counts the relays' moves after the descent's, once they have run.
-    relays = complete._descended("complete", problem, True)
+    relays = phases._descended("complete", problem, True)
     note = next(n for n in relays.plan.notes if n.startswith("bound descent:"))
     added = relays.plan.moves - int(note.split()[2])
     assert note.endswith("; it reached the goal") if relays.plan.ok and not added else (
         f"; relays from there: {added} moves" in note)
-    assert not complete._local(random_problem(complete.SMOOTH_LIMIT + 10, 0))
+    assert not phases._local(random_problem(phases.SMOOTH_LIMIT + 10, 0))
 
 
 def test_descent_keeps_off_obstacles():
@@ -121,7 +124,7 @@ def test_descent_keeps_off_obstacles():
         occ = set(start)
         path, _, _ = descend(occ, goal, (0, 0), obstacles)
         plan = Plan("descent", problem)
-        plan.steps = complete.play(set(start), path)
+        plan.steps = play(set(start), path)
         assert {xy(c) for c in validate(plan)} == occ and not occ & obstacles
         moved += len(path)
     assert moved > 30                                  # 41
@@ -137,7 +140,7 @@ def test_a_fill_finishes_where_no_escape_is_left(monkeypatch):
     path, _, fills = descend(occ, goal, (0, 0))
     assert occ == goal and fills
     plan = Plan("descent", problem)
-    plan.steps = complete.play(set(start), path)
+    plan.steps = play(set(start), path)
     assert {xy(c) for c in validate(plan)} == goal            # every move legal
     configurations = [{xy(c) for c in conf} for conf in plan.configurations()]
     for first, n in fills:
@@ -159,15 +162,15 @@ def test_stuck_relays_keep_the_descents_digs(monkeypatch):
     problem = random_scrambled_problem(1000, 18)
     made = _relays_made(monkeypatch)
     smoothed = []
-    monkeypatch.setattr(complete, "smoothed_plan", lambda *a, **k: smoothed.append(a))
+    monkeypatch.setattr(phases, "smoothed_plan", lambda *a, **k: smoothed.append(a))
     plan = Plan("complete", problem)
-    complete.plan_complete(plan)
+    phases.plan_complete(plan)
     validate(plan)
-    assert plan.ok and complete.DESCENT_DUG_NOTE in plan.notes
+    assert plan.ok and phases.DESCENT_DUG_NOTE in plan.notes
     # Neither the reverse problem's relays, nor pinned relays, nor smoothed shapes.
     assert not [p for p, kw in made if p.problem.initial == problem.goal or kw.get("pins")]
     assert not smoothed
-    assert plan.moves <= complete.DUG_KEEP * assignment_lower_bound(*_cells(problem))
+    assert plan.moves <= phases.DUG_KEEP * assignment_lower_bound(*_cells(problem))
 
 
 @pytest.mark.slow
@@ -178,9 +181,9 @@ def test_a_short_dig_from_the_descent_is_kept_before_other_relays(monkeypatch):
     problem = random_scrambled_problem(400, 13)
     made = _relays_made(monkeypatch)
     plan = Plan("complete", problem)
-    complete.plan_complete(plan)
+    phases.plan_complete(plan)
     validate(plan)
-    assert plan.ok and complete.DESCENT_DUG_NOTE in plan.notes
+    assert plan.ok and phases.DESCENT_DUG_NOTE in plan.notes
     starts = [kw.get("start") for _, kw in made]
     assert len(starts) == 1 and starts[0] is not None     # the descent's relays only
-    assert plan.moves <= complete.DUG_EARLY * assignment_lower_bound(*_cells(problem))
+    assert plan.moves <= phases.DUG_EARLY * assignment_lower_bound(*_cells(problem))

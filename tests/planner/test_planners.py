@@ -5,7 +5,8 @@ import pytest
 from bus.cli import main
 from bus.scenario import load
 
-from planner_svc import complete, planners, search, shorten
+from planner_svc import planners, search, shorten
+from planner_svc.complete import phases
 from planner_svc.bounds import random_problem, random_scrambled_problem
 from planner_svc.moves import GOAL_OFFSET
 from planner_svc.plan import JOULES_PER_MOVE, Plan, Problem, validate
@@ -108,7 +109,7 @@ def test_complete_takes_the_fewest_moves_on_small_fleets_when_the_search_finds_t
     assert proved.moves == 12 and proved.notes[-1] == (
         "exact search: no plan within 3 cells of start and goal has fewer than these 12 moves")
     heuristic = Plan("complete", as_problem(load("thesis-12")))
-    complete._plan_phases(heuristic, complete.EXACT_LIMIT)
+    phases._plan_phases(heuristic, phases.EXACT_LIMIT)
     shorten.shorten(heuristic)
     assert heuristic.moves == 19
     assert search.fewer_moves(heuristic, max_configurations=100) is None and heuristic.moves == 19

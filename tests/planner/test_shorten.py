@@ -3,7 +3,9 @@ shorter whenever the original wandered."""
 
 import random
 
-from planner_svc import complete, planners
+from planner_svc import planners
+from planner_svc.complete.steps import play
+from planner_svc.moves import lone_steps
 from planner_svc import shorten as shorten_module
 from planner_svc.bounds import random_blob, random_problem, scramble
 from planner_svc.plan import Plan, Problem, validate
@@ -17,7 +19,7 @@ def _random_walk_plan(n: int, moves: int, seed: int) -> Plan:
     start = random_blob(n, rng)
     end, path = scramble(start, moves, rng)
     plan = Plan("random-walk", Problem.of(start, end, (0, 0)))
-    plan.steps = complete.play(set(start), path)
+    plan.steps = play(set(start), path)
     plan.ok = True
     return plan
 
@@ -52,7 +54,7 @@ def test_shortened_walks_among_obstacles_stay_legal():
         occ, hops = set(start), []
         while len(hops) < 150:
             m = rng.choice(sorted(occ))
-            steps = [g for _, g in complete.lone_steps(occ, m, obstacles)]
+            steps = [g for _, g in lone_steps(occ, m, obstacles)]
             if not steps:
                 continue
             g = rng.choice(steps)
@@ -92,7 +94,7 @@ def test_a_long_round_trip_goes_when_nothing_needs_it():
     trip, occ, cur = [], set(start), (2, 0)
     for _ in range(3):                      # three steps to new cells around the line
         occ.discard(cur)
-        g = next(g for _, g in complete.lone_steps(occ, cur, set())
+        g = next(g for _, g in lone_steps(occ, cur, set())
                  if g not in start and all(g != b for _, b in trip))
         trip.append((cur, g))
         occ.add(g)
@@ -117,8 +119,8 @@ def test_overlapping_round_trips_of_one_module_keep_it_on_its_path():
     # z, which ends later, so they stay: dropping them too would leave the module at x.
     rest = {(0, 0), (1, 0), (0, 1)}
     x, y, z = (2, 0), (1, 1), (0, 2)
-    assert {g for _, g in complete.lone_steps(rest, x, set())} >= {y}
-    assert {g for _, g in complete.lone_steps(rest, y, set())} >= {x, z}
+    assert {g for _, g in lone_steps(rest, x, set())} >= {y}
+    assert {g for _, g in lone_steps(rest, y, set())} >= {x, z}
     hops = [(x, y), (y, z), (z, y), (y, x), (x, y), (y, z)]
     kept = drop_round_trips(rest | {x}, hops, (0, 0), frozenset())
     assert kept == [(x, y), (y, z)]
@@ -193,7 +195,7 @@ def test_a_window_skips_moves_far_from_it_and_plays_them_after_its_own():
     while len(hops) < 160:
         centre = centres[len(hops) % 2]
         m = rng.choice(sorted(c for c in occ if hex_distance(c, centre) <= 4))
-        steps = [g for _, g in complete.lone_steps(occ, m, set())
+        steps = [g for _, g in lone_steps(occ, m, set())
                  if hex_distance(g, centre) <= 4]
         if not steps:
             continue
