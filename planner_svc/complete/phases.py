@@ -50,8 +50,10 @@ HOLE_CALLS_LARGE = 100
 #: in: only digging is tried, through smoothed shapes first. With this many or fewer the
 #: other relay runs go first, then digging both ways (the shorter plan is kept).
 FEW_VOIDS = 4
-#: Fleets up to this size run smoothing (:func:`.smoothing.smooth`) before digging; larger
-#: ones advance (:meth:`.relays._Heuristic._advance_step`) and descend the bound.
+#: Fleets over this size are large: their relays advance
+#: (:meth:`.relays._Heuristic._advance_step`), they descend the bound first where it is
+#: local, and their last resort digs up to HOLE_CALLS_LARGE times (on smaller fleets the
+#: smoothed shapes, :mod:`.smoothing`, do better than advances).
 SMOOTH_LIMIT = 300
 #: Fleets up to this size also try the relay heuristic when phase 1 succeeds, keeping
 #: the shorter plan.
