@@ -6,7 +6,7 @@ import random
 
 import pytest
 
-from planner_svc import planners, windows
+from planner_svc import bounds, planners, windows
 from planner_svc.complete import digging, phases, smoothing
 from planner_svc.complete.relays import _Heuristic, _Looks
 from planner_svc.complete.steps import play, reverse_steps
@@ -410,7 +410,6 @@ def test_small_assignments_run_the_same_method_without_numpy(monkeypatch):
 
     import numpy as np
 
-    from planner_svc import bounds
     rng = random.Random(5)
     for n in [1, 2, 3, 4, 5, 6, 12, 40, 70]:
         for _ in range(3 if n > 6 else 20):
@@ -431,6 +430,31 @@ def test_small_assignments_run_the_same_method_without_numpy(monkeypatch):
             a, b = cells[:n], cells[n:]
             assert bounds.assignment_cost(a, b) == (bounds.min_cost_assignment(
                 bounds.distance_matrix(a, b))[1] if n else 0)
+
+
+@pytest.mark.parametrize("visits", [0, 1, bounds.REDUCTION_VISITS])
+def test_reduced_start_keeps_the_assignment_optimal(monkeypatch, visits):
+    # From REDUCED_ROWS rows the augmenting paths start from Jonker and Volgenant's
+    # reductions. Lowered to every size (and used however many rows they leave free),
+    # it must give the cost of the plain method: on narrow cost ranges (ties everywhere,
+    # where its tie rule acts), on hex distances, and with the row reduction cut short
+    # (visits 0: column reduction only) or not.
+    import numpy as np
+    rng = random.Random(11)
+    monkeypatch.setattr(bounds, "REDUCED_ROWS", 1)
+    monkeypatch.setattr(bounds, "REDUCED_FREE", 1.0)
+    monkeypatch.setattr(bounds, "REDUCTION_VISITS", visits)
+    for n in [64, 65, 80, 120]:
+        for top in [1, 3, 30]:
+            cost = np.array([[rng.randint(0, top) for _ in range(n)] for _ in range(n)])
+            col, total = bounds.min_cost_assignment(cost)
+            assert sorted(col) == list(range(n))
+            assert total == cost[np.arange(n), col].sum()
+            assert total == bounds._plain_assignment(cost.tolist())[1]
+    p = random_sparse_problem(100, 2)
+    i, g = {(c.x, c.y) for c in p.initial}, {(c.x, c.y) for c in p.goal}
+    cost = bounds.distance_matrix(sorted(i - g), sorted(g - i))
+    assert bounds.min_cost_assignment(cost)[1] == bounds._plain_assignment(cost.tolist())[1]
 
 
 def test_front_walk_tries_another_electron_when_a_walk_fails():
