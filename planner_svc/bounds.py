@@ -66,25 +66,30 @@ from .rules import Coord, hex_distance, neighbours_xy, occupancy_graph, xy
 PLAIN_ROWS = 64
 #: From this many rows :func:`min_cost_assignment` starts as Jonker and Volgenant's
 #: method does (:func:`_reduced_start`): most rows are matched before any augmenting path
-#: is searched (random trees of 1000 modules, 999 rows: 5-13 rows left to augment, 0.02-0.2
-#: s instead of 2-10 s). Below it the method is as before, so the optimal assignment it
-#: picks among ties, which ``complete``'s plans follow, stays the same (Eden blobs of 1000
-#: modules: at most 258 rows, 0.13 s).
-REDUCED_ROWS = 400
+#: is searched (random trees of 1000 modules, 999 rows: 5-13 rows left to augment); and an
+#: augmenting path, among columns tied at its least reduced cost, goes to a free one if
+#: there is one, where it ends (hex-convex shapes of 1000 modules, whose distances tie
+#: everywhere: 3-9x fewer steps). Bounds of 1000 modules take 0.01-0.7 s instead of
+#: 1-10 s. Below it the method is as before, so the optimal assignment it picks among
+#: ties, which ``complete``'s plans follow, stays the same (Eden blobs of 1000 modules:
+#: at most 258 rows, 0.13 s).
+LARGE_ROWS = 400
 #: Row visits the augmenting row reduction may make, per row (it ends far sooner on the
 #: instances seen; a cap keeps a price war short: the rows still free are augmented).
 REDUCTION_VISITS = 20
 #: The reductions are used only if they leave at most this share of the rows free. Where
 #: distances tie everywhere (hex-convex shapes of 1000 modules: 90-96% left free),
-#: augmenting from their potentials took longer than from zero (2.5 s instead of 0.9 s).
+#: augmenting from their potentials took longer than from zero (0.3-1.2 s instead of
+#: 0.3-0.7 s).
 REDUCED_FREE = 0.5
 
 
 def min_cost_assignment(cost: np.ndarray | list[list[int]]) -> tuple[np.ndarray, float]:
     """Minimum-cost perfect assignment of a square cost matrix (Hungarian method,
     shortest augmenting paths with potentials, O(n^3) with a numpy inner loop, or a
-    plain one below :data:`PLAIN_ROWS` rows; from :data:`REDUCED_ROWS` rows only the rows
-    :func:`_reduced_start` leaves free are augmented).
+    plain one below :data:`PLAIN_ROWS` rows; from :data:`LARGE_ROWS` rows only the rows
+    :func:`_reduced_start` leaves free are augmented, and paths end at free columns
+    among ties).
 
     Returns ``col_of_row`` (the column given to each row) and the total cost.
     """
@@ -96,7 +101,8 @@ def min_cost_assignment(cost: np.ndarray | list[list[int]]) -> tuple[np.ndarray,
         col, total = _plain_assignment(rows)
         return np.array(col, dtype=np.intp), float(total)
     c = np.asarray(cost, dtype=float)
-    start = _reduced_start(c) if n >= REDUCED_ROWS else None
+    large = n >= LARGE_ROWS
+    start = _reduced_start(c) if large else None
     if start is not None:
         u, v, row_of_col, free_rows = start
     else:
@@ -120,7 +126,7 @@ def min_cost_assignment(cost: np.ndarray | list[list[int]]) -> tuple[np.ndarray,
             minv[1:][better] = cur[better]
             way[1:][better] = j0
             cand = np.where(free, minv[1:], np.inf)
-            j1 = int(np.argmin(cand)) + 1
+            j1 = _tie_to_free(cand, row_of_col) if large else int(np.argmin(cand)) + 1
             delta = cand[j1 - 1]
             u[row_of_col[used]] += delta
             v[used] -= delta
@@ -131,6 +137,14 @@ def min_cost_assignment(cost: np.ndarray | list[list[int]]) -> tuple[np.ndarray,
         _augment(row_of_col, way, j0)
     col_of_row = np.array(_columns(row_of_col), dtype=np.intp)
     return col_of_row, float(c[np.arange(n), col_of_row].sum())
+
+
+def _tie_to_free(cand: np.ndarray, row_of_col: np.ndarray) -> int:
+    """The column (1-based) of least ``cand``: a free one if any is among the ties, since
+    the augmenting path ends there."""
+    ties = np.flatnonzero(cand == cand.min())
+    free = ties[row_of_col[ties + 1] == 0]
+    return int(free[0] if free.size else ties[0]) + 1
 
 
 def _reduced_start(c: np.ndarray

@@ -432,17 +432,19 @@ def test_small_assignments_run_the_same_method_without_numpy(monkeypatch):
                 bounds.distance_matrix(a, b))[1] if n else 0)
 
 
-@pytest.mark.parametrize("visits", [0, 1, bounds.REDUCTION_VISITS])
-def test_reduced_start_keeps_the_assignment_optimal(monkeypatch, visits):
-    # From REDUCED_ROWS rows the augmenting paths start from Jonker and Volgenant's
-    # reductions. Lowered to every size (and used however many rows they leave free),
-    # it must give the cost of the plain method: on narrow cost ranges (ties everywhere,
-    # where its tie rule acts), on hex distances, and with the row reduction cut short
+@pytest.mark.parametrize("visits,share", [(0, 1.0), (1, 1.0), (bounds.REDUCTION_VISITS, 1.0),
+                                          (bounds.REDUCTION_VISITS, -1.0)])
+def test_large_assignments_stay_optimal(monkeypatch, visits, share):
+    # From LARGE_ROWS rows the augmenting paths start from Jonker and Volgenant's
+    # reductions and end at free columns among ties. Lowered to every size (the
+    # reductions used however many rows they leave free, or never: share), it must
+    # give the cost of the plain method: on narrow cost ranges (ties everywhere, where
+    # the tie rules act), on hex distances, and with the row reduction cut short
     # (visits 0: column reduction only) or not.
     import numpy as np
     rng = random.Random(11)
-    monkeypatch.setattr(bounds, "REDUCED_ROWS", 1)
-    monkeypatch.setattr(bounds, "REDUCED_FREE", 1.0)
+    monkeypatch.setattr(bounds, "LARGE_ROWS", 1)
+    monkeypatch.setattr(bounds, "REDUCED_FREE", share)
     monkeypatch.setattr(bounds, "REDUCTION_VISITS", visits)
     for n in [64, 65, 80, 120]:
         for top in [1, 3, 30]:
