@@ -143,7 +143,25 @@ class _Peel:
 
 class _Digging:
     """The digging steps of the relay heuristic (mixed into
-    :class:`planner_svc.complete.relays._Heuristic`, which sets up their state)."""
+    :class:`planner_svc.complete.relays._Heuristic`, whose constructor calls
+    :meth:`_init_digging`)."""
+
+    def _init_digging(self, hole_calls: int) -> None:
+        """The digging state: ``hole_calls`` planned digs allowed (0: none)."""
+        #: Planned hole fills left (:meth:`_hole_step`).
+        self.hole_budget = hole_calls
+        self.hole_failed: set[tuple[frozenset[Coord], ...]] = set()
+        #: Cells (a hole, an electron) dug for before, whatever the outcome.
+        self.dug_before: set[frozenset[Coord]] = set()
+        #: The last lake opened (:meth:`_open_lake`), its crater's goal cells, and the
+        #: voids left when it was opened (another lake opens only after progress). The
+        #: relays read them too: voids at the mouth of an open lake wait.
+        self.lake: set[Coord] = set()
+        self.mouth: set[Coord] = set()
+        self.lake_voids = 1 << 30
+        #: The goal cells of the last wedge emptied (:meth:`_clear_wedge`) and their
+        #: levels: refilled apex first, the peel backwards (else the apex is sealed).
+        self.wedge_fill: dict[Coord, int] = {}
 
     def _hole_step(self) -> bool:
         """Fill a hole (a cluster of voids no walker reaches) by a planned dig (see

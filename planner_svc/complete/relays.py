@@ -118,19 +118,7 @@ class _Heuristic(_Digging, _Phase):
         self.window_memo: dict[tuple, Path | None] = {}
         self.advance = advance
         self.advance_budget = ADVANCE_CALLS
-        #: Planned hole fills left (:meth:`_hole_step`; only when ``holes``).
-        self.hole_budget = hole_calls if holes else 0
-        self.hole_failed: set[tuple[frozenset[Coord], ...]] = set()
-        #: Cells (a hole, an electron) dug for before, whatever the outcome.
-        self.dug_before: set[frozenset[Coord]] = set()
-        #: The last lake opened (:meth:`_open_lake`), its crater's goal cells, and the
-        #: voids left when it was opened (another lake opens only after progress).
-        self.lake: set[Coord] = set()
-        self.mouth: set[Coord] = set()
-        self.lake_voids = 1 << 30
-        #: The goal cells of the last wedge emptied (:meth:`_clear_wedge`) and their
-        #: levels: refilled apex first, the peel backwards (else the apex is sealed).
-        self.wedge_fill: dict[Coord, int] = {}
+        self._init_digging(hole_calls if holes else 0)
         #: The fewest voids so far (fewer is progress: the budgets are renewed).
         self.fewest = len(self.goal - self.occ)
         #: Whether the voids next to a pinned electron wait (:meth:`_waiting`), and
