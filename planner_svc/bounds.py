@@ -69,8 +69,8 @@ PLAIN_ROWS = 64
 #: is searched (random trees of 1000 modules, 999 rows: 5-13 rows left to augment); and an
 #: augmenting path, among columns tied at its least reduced cost, goes to a free one if
 #: there is one, where it ends (hex-convex shapes of 1000 modules, whose distances tie
-#: everywhere: 3-9x fewer steps). Bounds of 1000 modules take 0.01-0.7 s instead of
-#: 1-10 s. Below it the method is as before, so the optimal assignment it picks among
+#: everywhere: 3-9x fewer steps). Their bounds at 1000 modules take 0.04-0.7 s instead
+#: of 1-10 s. Below it the method is as before, so the optimal assignment it picks among
 #: ties, which ``complete``'s plans follow, stays the same (Eden blobs of 1000 modules:
 #: at most 258 rows, 0.13 s).
 LARGE_ROWS = 400
@@ -79,8 +79,8 @@ LARGE_ROWS = 400
 REDUCTION_VISITS = 20
 #: The reductions are used only if they leave at most this share of the rows free. Where
 #: distances tie everywhere (hex-convex shapes of 1000 modules: 90-96% left free),
-#: augmenting from their potentials took longer than from zero (0.3-1.2 s instead of
-#: 0.3-0.7 s).
+#: augmenting from their potentials was no quicker than from zero (seeds 0, 2 and 3:
+#: 0.33, 1.22 and 0.47 s instead of 0.31, 0.73 and 0.58 s).
 REDUCED_FREE = 0.5
 
 
