@@ -309,9 +309,9 @@ def distance_matrix(a: Iterable[Cell | Coord], b: Iterable[Cell | Coord]) -> np.
     return (np.abs(dx) + np.abs(dy) + np.abs(dx + dy)) // 2
 
 
-#: Recent electron-void assignments (the bound's and the planner's are the same, and the
-#: Hungarian method takes seconds for some fleets of 1000: hex-convex shapes, 1-4 s):
-#: key (electrons, voids).
+#: Recent electron-void assignments (the bound's and the planner's are the same, and at
+#: 1000 modules the Hungarian method takes up to 0.7 s: hex-convex shapes): key
+#: (electrons, voids).
 _ASSIGNMENTS: dict[tuple[tuple[Coord, ...], tuple[Coord, ...]], tuple[np.ndarray, float]] = {}
 _ASSIGNMENTS_KEPT = 4
 

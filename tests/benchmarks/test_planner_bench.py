@@ -160,13 +160,14 @@ def test_planner_benchmark():
             ratios = [r[5] / r[6] for r in ok]
             refs = [r[5] / r[11] for r in ok if r[11]]
             worst_time = max(r[7] + r[8] for r in ok)
-            print(f"    n={n:5}: solved {len(ok)}/{sum(r[1] == n for r in done)}, "
+            cases = sum(r[1] == n for r in done)
+            print(f"    n={n:5}: solved {len(ok)}/{cases}, "
                   f"worst time {worst_time:.2f} s (bound + plan), "
                   f"ratio to bound worst "
                   f"{max(ratios):.2f} mean {sum(ratios) / len(ratios):.2f}, "
                   f"to walk reference mean {sum(refs) / max(len(refs), 1):.2f}"
-                  + (_target(len(ok) == sum(r[1] == n for r in done), worst_time,
-                             max(ratios)) if n == TARGET_MODULES else ""))
+                  + (_target(len(ok) == cases, worst_time, max(ratios))
+                     if n == TARGET_MODULES else ""))
 
 
 #: The exact planner's instances: the thesis's scenarios, and the Eden and scrambled
