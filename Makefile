@@ -16,7 +16,8 @@ demo: $(STAMP)
 	$(VENV)/bin/hexbench demo
 
 test: $(STAMP)
-	$(PY) -m pytest -q tests module_sim/conformance --ignore=tests/benchmarks
+	$(VENV)/bin/lint-imports --no-logo
+	$(PY) -m pytest -q tests hexbench/conformance --ignore=tests/benchmarks
 
 bench: $(STAMP)
 	$(PY) -m pytest -q -s tests/benchmarks

@@ -21,8 +21,10 @@ import time
 from abc import ABC, abstractmethod
 from typing import Any, Callable
 
+from .errors import HexbenchError
 
-class ClockError(RuntimeError):
+
+class ClockError(HexbenchError, RuntimeError):
     pass
 
 

@@ -21,10 +21,12 @@ import re
 from dataclasses import dataclass
 from typing import Sequence
 
+from .errors import HexbenchError
+
 _SPEC = re.compile(r"^m(?P<id>\d{1,3})\.(?:(?P<side>S[1-6])(?P<relay>[+-]?):off|(?P<joint>J[1-6]):closed)$")
 
 
-class FaultSpecError(ValueError):
+class FaultSpecError(HexbenchError, ValueError):
     """A fault spec that does not parse; the message shows the accepted forms."""
 
 

@@ -16,6 +16,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from .errors import HexbenchError
 from .faults import ActuatorFault, FaultSpecError
 from .lattice import Cell, matrix_to_cells
 
@@ -26,7 +27,7 @@ _TOP_KEYS = {"name", "description", "profile", "seed", "fixed", "goal", "goal_ma
 _MODULE_KEYS = {"cell", "id", "kind", "orientation", "port", "debug_port"}
 
 
-class ScenarioError(ValueError):
+class ScenarioError(HexbenchError, ValueError):
     """A scenario that cannot be used; the message says where and what was expected."""
 
 

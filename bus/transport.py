@@ -12,10 +12,11 @@ from typing import Any, Callable
 
 import zenoh
 
-from .clock import Clock
+from .clock import Clock, make_clock
 from .codec import Frame
 from .envelope import SCHEMA_VERSION, Envelope
-from .keys import Keys
+from .errors import UsageError
+from .keys import Keys, check_chunk
 from .session import SessionOptions, open_session
 
 
@@ -116,7 +117,16 @@ class Bus:
         return sub
 
     def subscribe_json(self, keyexpr: str, handler: Callable[[str, Any], None]) -> Any:
+        """``handler(key, obj)`` with the payload decoded from JSON."""
         return self.subscribe(keyexpr, lambda k, p: handler(k, json.loads(p)))
+
+    def subscribe_frames(self, handler: Callable[[Envelope], None], link: str | None = None, *,
+                         keyexpr: str | None = None) -> Any:
+        """``handler(envelope)`` for every frame (of one ``link``, or under ``keyexpr``):
+        receivers get typed envelopes, as python-can's listeners get messages."""
+        if keyexpr is None:
+            keyexpr = self.keys.frames if link is None else self.keys.frames_of(link)
+        return self.subscribe(keyexpr, lambda k, p: handler(Envelope.from_json(p)))
 
     def close(self) -> None:
         if self.closed:
@@ -129,6 +139,21 @@ class Bus:
                 pass
         if self._own_session:
             self.session.close()
+
+
+def open_bus(args: Any, clock: Clock | None = None) -> Bus:
+    """The one way a CLI opens its bus (python-can's ``create_bus_from_namespace``): from the
+    options of :func:`bus.session.add_arguments` (``--fleet``, ``--connect``, ``--listen``,
+    ``--mode``, ``--isolated``) and ``--clock`` (``wall`` unless the parser has one).
+    A fleet name unusable in a key is a :class:`~bus.errors.UsageError`."""
+    fleet = getattr(args, "fleet", None) or "default"
+    try:
+        check_chunk(fleet, "fleet")
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if clock is None:
+        clock = make_clock(getattr(args, "clock", None) or "wall")
+    return Bus(clock, fleet, options=SessionOptions.from_args(args))
 
 
 _dumps = json.JSONEncoder(separators=(",", ":")).encode

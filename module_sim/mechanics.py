@@ -12,7 +12,8 @@ what happened on ``world/event`` (``move-started``, ``move-completed``,
 from __future__ import annotations
 
 import json
-from typing import TYPE_CHECKING, Any, Callable
+from dataclasses import dataclass
+from typing import Any, Callable
 
 from bus.faults import ActuatorFault, apply_all
 from bus.lattice import Cell
@@ -23,14 +24,23 @@ from .energy import EnergyBreakdown, EnergyMeter
 from .physics import (Fault, ModuleSpec, MotionJudge, MoveCompleted, MoveRefused, MoveStarted,
                       Outcome, PhysicsParams, orientation_after)
 
-if TYPE_CHECKING:
-    from .world import Body
+
+@dataclass
+class Body:
+    """A module's body in the world: where it is, and whether it is the fixed one."""
+
+    module: str
+    id: int
+    cell: Cell
+    orientation: int
+    kind: str = "virtual"
+    fixed: bool = False
 
 
 class Mechanics:
     """Physics and energy of a fleet, driven by the actuator records on the bus."""
 
-    def __init__(self, bus: Bus, bodies: dict[str, "Body"], obstacles: set[Cell],
+    def __init__(self, bus: Bus, bodies: dict[str, Body], obstacles: set[Cell],
                  on_moved: Callable[[MoveCompleted], None], *,
                  faults: list[ActuatorFault] | None = None,
                  params: PhysicsParams = PhysicsParams()) -> None:

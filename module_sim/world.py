@@ -20,27 +20,17 @@ from __future__ import annotations
 
 import json
 import random
-from dataclasses import dataclass
 
-from bus.ir import Air, Burst, cut_message, forwarded, garble_fixes
+from bus.ir import Burst, cut_message, forwarded, garble_fixes
 from bus.keys import PC, WORLD, module_endpoint
 from bus.lattice import Cell, Side, body_to_global, global_to_body
 from bus.messages import Pose, Switches, WorldEvent
 from bus.scenario import Scenario
 from bus.transport import Bus
 
-from .mechanics import Mechanics
+from .air import Air
+from .mechanics import Body, Mechanics
 from .physics import MoveCompleted
-
-
-@dataclass
-class Body:
-    module: str
-    id: int
-    cell: Cell
-    orientation: int
-    kind: str = "virtual"
-    fixed: bool = False
 
 
 class World:

@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Callable
 
+from bus.errors import HexbenchError
 from bus.functions import FunctionCode as F
 from bus.lattice import Cell, rotate_offset
 from bus.scenario import Scenario
@@ -30,7 +31,7 @@ SELECT_ALL, SELECT_ID, SELECT_NONE = 0, 1, 4
 RETRIES = 3
 
 
-class BringUpError(RuntimeError):
+class BringUpError(HexbenchError, RuntimeError):
     """The fleet could not be brought up; the message names the module and the cause."""
 
 

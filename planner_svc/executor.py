@@ -23,6 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Callable
 
+from bus.errors import HexbenchError
 from bus.functions import FunctionCode as F
 from bus.lattice import Cell, Direction, Joint, Side
 from bus.messages import Pose, WorldEvent
@@ -32,7 +33,7 @@ from bus.transport import Bus
 
 from .bringup import BringUp, Fleetview, ModuleState
 from .endpoint import ExpectTimeout, PcEndpoint
-from .rules import Move
+from .planners.rules import Move
 
 #: Thesis timing of a rotation (§7): t1 = 8, t2 = 4, t3 = 9 ticks.
 THESIS_TIMING = (8, 4, 9)
@@ -40,7 +41,7 @@ THESIS_TIMING = (8, 4, 9)
 SETTLE_S = 2.0
 
 
-class MoveFailed(RuntimeError):
+class MoveFailed(HexbenchError, RuntimeError):
     """A move that did not happen as planned; ``diagnosis`` says who, what and why."""
 
     def __init__(self, diagnosis: str, module: int | None = None, move: Move | None = None,

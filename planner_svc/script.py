@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Callable
 
 from bus.codec import Kind
+from bus.errors import HexbenchError
 from bus.functions import lookup
 from bus.timing import NS_PER_S
 
@@ -30,7 +31,7 @@ from .endpoint import ExpectTimeout, PcEndpoint
 DEFAULT_TIMEOUT_S = 5.0
 
 
-class ScriptError(ValueError):
+class ScriptError(HexbenchError, ValueError):
     """A script line that cannot be parsed or whose expectation failed."""
 
 

@@ -20,12 +20,13 @@ from bus.scenario import Scenario
 from bus.timing import NS_PER_S
 from bus.transport import Bus
 
-from . import planners, thesis
+from . import planners
+from .planners import thesis
 from .bringup import BringUp, BringUpError, Fleetview
 from .endpoint import PcEndpoint
 from .executor import THESIS_TIMING, Executor, GroundTruth, MoveFailed
-from .plan import Plan, PlanError, Problem, validate
-from .rules import Move
+from .planners.plan import Plan, PlanError, Problem, validate
+from .planners.rules import Move
 from .script import ScriptError, run_script
 
 

@@ -23,6 +23,8 @@ from mcap.opcode import Opcode
 from mcap.records import (Channel, Chunk, ChunkIndex, DataEnd, Footer, Header, MessageIndex, Metadata,
                           MetadataIndex, Schema, Statistics, SummaryOffset)
 
+from bus.errors import HexbenchError
+
 MAGIC = bytes([137, 77, 67, 65, 80, 48, 13, 10])
 #: opcode, record length, channel id, sequence, log time, publish time (then the data).
 _MESSAGE_HEADER = struct.Struct("<BQHIQQ")
@@ -30,7 +32,7 @@ _MESSAGE_OVERHEAD = _MESSAGE_HEADER.size - 9  # record length counts the fields,
 COMPRESSIONS = ("zstd", "lz4", "none")
 
 
-class CompressionUnavailable(RuntimeError):
+class CompressionUnavailable(HexbenchError, RuntimeError):
     """The package a compression needs is not installed."""
 
 

@@ -1,7 +1,7 @@
 """Playing a recording back in time order (the role of python-can's ``can.player``).
 
 :class:`Player` yields samples in log-time order across rotated parts; the rerun replay
-consumes it. The bus replay (:mod:`recordings.bus_replay`) schedules recorded frames on a
+consumes it. The bus replay (:mod:`hexbench.bus_replay`) schedules recorded frames on a
 clock with their original timing instead.
 """
 

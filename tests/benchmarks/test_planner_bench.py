@@ -2,7 +2,7 @@
 
 Run alone: ``pytest -s tests/benchmarks/test_planner_bench.py``. Four families of random
 connected instances of 10, 100 and 1000 modules sharing the fixed cell (0,0) (see
-:mod:`planner_svc.bounds`); in the first three start and goal are independent, in the
+:mod:`planner_svc.planners.bounds`); in the first three start and goal are independent, in the
 last the goal is the start scrambled:
 
 * **eden**: compact Eden blobs (:func:`random_problem`). Hard under Table 4-3: a
@@ -39,7 +39,7 @@ last the goal is the start scrambled:
   phase 1 stopped, which stop too, ran first).
 
 Each instance also gets a *walk reference*
-(:func:`planner_svc.bounds.walk_reference`): the same assignment with each module's cost
+(:func:`planner_svc.planners.bounds.walk_reference`): the same assignment with each module's cost
 its shortest path through the cells of start and goal. It is not a bound (a plan may
 bridge free space) but it separates what the shapes cost from what the planner loses:
 on random trees it is about 2x the bound.
@@ -53,7 +53,7 @@ depends on the machine); the test asserts that every plan is legal. Plans longer
 :data:`FULL_VALIDATE` moves only (the validator checks connectivity of the whole
 structure per move: minutes for 5e5 moves) and replayed to the end to check that they
 end in the goal. ``complete`` reuses the bound's assignment
-(:func:`planner_svc.bounds.electron_void_assignment`, computed first here), so its time
+(:func:`planner_svc.planners.bounds.electron_void_assignment`, computed first here), so its time
 from scratch is "bound s" plus "plan s"; the summary lines count both. A summary line
 per family gives, for ``complete``: instances solved, and per size the worst time
 (bound + plan) and the worst and mean ratio to the bound; for 1000 modules, whether the
@@ -72,10 +72,10 @@ import pytest
 
 from bus.scenario import load
 from planner_svc import planners
-from planner_svc.bounds import (assignment_lower_bound, random_convex_problem, random_problem,
+from planner_svc.planners.bounds import (assignment_lower_bound, random_convex_problem, random_problem,
                                 random_scrambled_problem, random_sparse_problem, walk_reference)
-from planner_svc.plan import validate
-from planner_svc.rules import xy
+from planner_svc.planners.plan import validate
+from planner_svc.planners.rules import xy
 
 FAMILIES = {"eden": random_problem, "sparse": random_sparse_problem,
             "convex": random_convex_problem, "scrambled": random_scrambled_problem}

@@ -26,7 +26,7 @@ from bus.transport import Bus
 from recordings.reader import summary
 from recordings.recorder import Recorder
 from recordings.replay import replay
-from recordings.synthetic import run_synthetic
+from synthetic import run_synthetic
 
 WRITER_TARGET = 100_000  # frames/s
 REPLAY_TARGET = 50.0  # x real time
@@ -139,8 +139,8 @@ def test_replay_speed(tmp_path):
 def test_replay_and_compare_of_a_fleet_run(tmp_path, capsys):
     """A real virtual run (``hexbench run thesis-6``: bring-up, 8 moves) replayed to .rrd, and
     replayed onto a fresh fleet with ``--compare`` (sim seconds per wall second)."""
-    from bus.cli import main
-    from recordings.compare import compare
+    from hexbench.cli import main
+    from hexbench.compare import compare
 
     path = tmp_path / "t6.mcap"
     if main(["run", "thesis-6", "--clock", "virtual", "--record", str(path)]) != 0 or not path.exists():

@@ -5,11 +5,11 @@ import sys
 
 import pytest
 
-from bus.cli import main
+from hexbench.cli import main
 
 
 def run(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "bus", *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "hexbench", *args], capture_output=True, text=True,
                           timeout=60)
 
 

@@ -18,7 +18,7 @@ from typing import Iterator
 
 import pytest
 
-from hil.standin import StandIn
+from hexbench.standin import StandIn
 
 ROOT = Path(__file__).resolve().parents[2]
 BOOT_TIMEOUT_S = 40.0
@@ -46,7 +46,7 @@ class Shard:
 
     def command(self) -> list[str]:
         return [sys.executable, "-m", "pytest", "-q", "-rs", "-p", "no:cacheprovider",
-                "--pyargs", "module_sim.conformance", "-k", self.select,
+                "--pyargs", "hexbench.conformance", "-k", self.select,
                 f"--hexbench-target=serial:{self.standin.path}", f"--hexbench-profile={self.profile}"]
 
     def run(self) -> None:

@@ -21,7 +21,7 @@ from bus.session import SessionOptions
 from bus.transport import Bus
 from hil.bridge import FAULT, RECOVERED, CentreBridge, DebugBridge
 from hil.port import Backoff
-from hil.standin import StandIn
+from hexbench.standin import StandIn
 from planner_svc.endpoint import PcEndpoint
 
 _fleets = itertools.count()
@@ -54,7 +54,7 @@ def rig(standin: StandIn) -> Iterator[Rig]:
         bridge = CentreBridge(bus, standin.path, backoff=Backoff(0.02, 0.2)).start()
         debug = DebugBridge(bus, standin.debug_path, 1).start()
         r = Rig(clock, bus, bridge, debug, PcEndpoint(bus))
-        bus.subscribe(bus.keys.frames, lambda k, p: r.frames.append(Envelope.from_json(p)))
+        bus.subscribe_frames(r.frames.append)
         bus.subscribe_json(f"{bus.keys.root}/event/**", lambda k, d: r.events.append(d))
         yield r
     finally:

@@ -1,4 +1,4 @@
-"""The conformance suite (module_sim.conformance) with ``--hexbench-target serial:<pty>``
+"""The conformance suite (hexbench.conformance) with ``--hexbench-target serial:<pty>``
 against stand-ins, both profiles, in four shards that run in the background (conftest)."""
 
 from __future__ import annotations

@@ -7,8 +7,8 @@ import json
 
 from mcap.reader import make_reader
 
-from bus.cli import main
-from hil.standin import StandIn
+from hexbench.cli import main
+from hexbench.standin import StandIn
 
 
 def test_planner_run_with_a_real_module_reaches_the_goal(tmp_path, capsys):

@@ -9,7 +9,7 @@ from typing import Iterator
 
 import pytest
 
-from bus.cli import main
+from hexbench.cli import main
 from bus.clock import VirtualClock, WallClock
 from bus.codec import EOL, PREAMBLE, encode_command
 from bus.envelope import Envelope
@@ -78,7 +78,7 @@ def test_cli_refuses_the_virtual_clock_and_bad_urls(capsys):
 def test_loop_url_carries_the_pc_light_back_as_hardware_frames(bus: Bus):
     """loop:// returns what is written: the PC's command comes back as centre-link bytes."""
     frames: list[Envelope] = []
-    bus.subscribe(bus.keys.frames_of("centre"), lambda k, p: frames.append(Envelope.from_json(p)))
+    bus.subscribe_frames(frames.append, "centre")
     bridge = CentreBridge(bus, "loop://").start()
     try:
         pc = PcEndpoint(bus)
@@ -122,7 +122,7 @@ def test_socket_dropped_gives_fault_and_recovery_and_flushes_the_partial_line(bu
     events: list[dict] = []
     frames: list[Envelope] = []
     bus.subscribe_json(f"{bus.keys.root}/event/**", lambda k, d: events.append(d))
-    bus.subscribe(bus.keys.frames_of("centre"), lambda k, p: frames.append(Envelope.from_json(p)))
+    bus.subscribe_frames(frames.append, "centre")
     bridge = CentreBridge(bus, server.url, backoff=Backoff(0.02, 0.1)).start()
     try:
         assert server.accepted.acquire(timeout=3)

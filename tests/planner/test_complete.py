@@ -1,24 +1,25 @@
 """The ``complete`` planner: its helpers agree with the one legality rule, and its plans
 are legal and reach the goal on seeded random instances of the three families of
-:mod:`planner_svc.bounds` (big sizes: the benchmark)."""
+:mod:`planner_svc.planners.bounds` (big sizes: the benchmark)."""
 
 import random
 
 import pytest
 
-from planner_svc import bounds, planners, windows
-from planner_svc.complete import digging, phases, smoothing
-from planner_svc.complete.relays import _Heuristic, _Looks
-from planner_svc.complete.steps import play, reverse_steps
-from planner_svc.complete.walks import RELAY_LIMIT, _FrontWalk, astar_walk, is_cut_bounded
-from planner_svc.moves import bfs, can_move, disk, enterable, is_cut, lone_steps, ring2, walk
-from planner_svc.bounds import (assignment_lower_bound, random_blob, random_convex_problem,
+from planner_svc import planners
+from planner_svc.planners import bounds, windows
+from planner_svc.planners.complete import digging, phases, smoothing
+from planner_svc.planners.complete.relays import Heuristic, _Looks
+from planner_svc.planners.complete.steps import play, reverse_steps
+from planner_svc.planners.complete.walks import RELAY_LIMIT, FrontWalk, astar_walk, is_cut_bounded
+from planner_svc.planners.moves import bfs, can_move, disk, enterable, is_cut, lone_steps, ring2, walk
+from planner_svc.planners.bounds import (assignment_lower_bound, random_blob, random_convex_problem,
                                 random_hex_convex, random_problem, random_scrambled_problem,
                                 random_sparse_problem, random_sparse_tree, scramble,
                                 walk_reference)
-from planner_svc.plan import Plan, Problem, validate
-from planner_svc.shorten import WINDOWS_NOTE
-from planner_svc.rules import (RULE_OFFSETS, _rule_violation, articulation_cells, find_move,
+from planner_svc.planners.plan import Plan, Problem, validate
+from planner_svc.planners.shorten import WINDOWS_NOTE
+from planner_svc.planners.rules import (RULE_OFFSETS, _rule_violation, articulation_cells, find_move,
                                hex_distance, is_connected, neighbours_xy, to_move, xy)
 
 
@@ -147,7 +148,7 @@ def test_sealed_voids_are_dug_open_and_filled(seed):
     # digs a crater to it, fills it and refills the crater (planned peels, reversed).
     problem = random_problem(30, seed)
     stuck = Plan("complete", problem)
-    _Heuristic(stuck).run()
+    Heuristic(stuck).run()
     assert not stuck.ok                          # the relays alone do not finish
     plan = _check(problem)
     assert any("holes dug" in n for n in plan.notes)
@@ -158,12 +159,12 @@ def test_digging_on_from_where_the_relays_stopped_is_the_run_that_digs_from_the_
     # 1000 modules: 30 s); the plan must be the one a digging run makes from the start.
     problem = random_problem(30, 7)
     stopped = Plan("complete", problem)
-    relays = _Heuristic(stopped)
+    relays = Heuristic(stopped)
     relays.run()
     assert not stopped.ok
     on, fresh = Plan("complete", problem), Plan("complete", problem)
     relays.dig_on(on)
-    _Heuristic(fresh, holes=True).run()
+    Heuristic(fresh, holes=True).run()
     assert on.ok and on.steps == fresh.steps
     assert len(stopped.steps) < len(on.steps)      # the stopped plan is left as it was
 
@@ -188,7 +189,7 @@ def test_peel_plan_digs_every_hole_cell_out():
     hole = {(1, 1), (2, 1)}
     occ = cells - hole
     problem = Problem.of(occ | {(5, 0), (6, -1)}, cells, (0, 0))
-    h = _Heuristic(Plan("complete", problem), holes=True)
+    h = Heuristic(Plan("complete", problem), holes=True)
     sim = occ | {(5, 0), (6, -1)} | hole
     peels = h._peel_plan(hole, sim)
     assert peels and hole <= {k for k, _ in peels}
@@ -217,7 +218,7 @@ def test_electron_in_a_bays_flat_ceiling_is_peeled_out_from_the_walls():
     e = (9, 3)                                  # mid-ceiling: four neighbours
     goal = (cells - {e}) | {(9, 8)}
     problem = Problem.of(cells, goal, (0, 7))
-    h = _Heuristic(Plan("complete", problem), holes=True)
+    h = Heuristic(Plan("complete", problem), holes=True)
     # The crater, a ball in the bay, ends in the flat ceiling: nothing in it can move.
     assert h._peel_crater(digging._Peel(h, set(), set(cells), {e})) is None
     peels = h._peel_plan(set(), must={e})
@@ -389,7 +390,7 @@ def test_convex_instances_reach_the_goal_near_the_bound(n, seed):
 
 
 def test_the_shared_assignment_is_the_hungarian_one():
-    from planner_svc.bounds import distance_matrix, electron_void_assignment, min_cost_assignment
+    from planner_svc.planners.bounds import distance_matrix, electron_void_assignment, min_cost_assignment
     p = random_convex_problem(30, 1)
     i, g = {(c.x, c.y) for c in p.initial}, {(c.x, c.y) for c in p.goal}
     electrons, voids = sorted(i - g), sorted(g - i)
@@ -467,7 +468,7 @@ def test_front_walk_tries_another_electron_when_a_walk_fails():
     # walled in behind them remain.
     p = random_problem(100, 0)
     plan = Plan("complete", p)
-    front = _FrontWalk(plan, {xy(c) for c in p.initial})
+    front = FrontWalk(plan, {xy(c) for c in p.initial})
     assert not front.run()
     goal = {xy(c) for c in p.goal}
     assert len(goal - front.occ) <= 3
@@ -607,7 +608,7 @@ def test_walled_in_electrons_are_dug_out_once_per_cell_while_no_void_fills():
     centre, spare = (1, 1), (4, -1)
     ring = set(neighbours_xy(centre))
     problem = Problem.of(ring | {centre}, ring | {(3, 1)}, (1, 0))
-    h = _Heuristic(Plan("complete", problem), holes=True, hole_calls=50)
+    h = Heuristic(Plan("complete", problem), holes=True, hole_calls=50)
     digs = []
 
     def dig(hole, must=frozenset()):
@@ -638,7 +639,7 @@ def test_a_hole_deep_under_a_flat_face_is_reached_by_a_wider_crater():
     occ = (cells - hole) | extra
     problem = Problem.of(occ, cells, (0, 0))
     plan = Plan("complete", problem)
-    h = _Heuristic(plan, holes=True)
+    h = Heuristic(plan, holes=True)
     width, deep = digging.HOLE_CRATERS[0]
     assert h._peel_crater(digging._Peel(h, hole, occ | hole, set()), width, deep) is None
     plans = list(h._peel_plans(hole))
@@ -672,7 +673,7 @@ def test_a_lake_too_big_to_dig_is_opened_to_the_outside():
     occ = (cells - lake) | electrons
     problem = Problem.of(occ, cells, (r, 0))
     plan = Plan("complete", problem)
-    h = _Heuristic(plan, holes=True)
+    h = Heuristic(plan, holes=True)
     assert len(lake) > digging.HOLE_MAX
     assert not lake & _free_reach(h.occ, (0, 20))              # sealed at first
     assert h._open_lake(lake)
@@ -707,7 +708,7 @@ def test_a_walled_in_electron_is_freed_by_emptying_a_wedge_and_the_wedge_refille
     goal = (cells - {e}) | {(6, -5)}
     problem = Problem.of(cells, goal, (0, -5))
     plan = Plan("complete", problem)
-    h = _Heuristic(plan, holes=True)
+    h = Heuristic(plan, holes=True)
     assert not any(n not in cells for n in neighbours_xy(e))
     assert h._clear_wedge(e) and e not in h.occ and h.wedge_fill
     levels = h.wedge_fill
@@ -741,14 +742,14 @@ def test_relays_that_wall_voids_in_go_straight_to_digging(monkeypatch, few_voids
     monkeypatch.setattr(phases, "_local", lambda problem: False)     # no bound descent
     p = random_problem(20, 7)
     runs = []
-    init = _Heuristic.__init__
+    init = Heuristic.__init__
 
     def spy(self, plan, *args, **kwargs):
         runs.append("reverse" if plan.problem.initial == p.goal else
                     "phase 1" if kwargs.get("start") is not None and not kwargs.get("holes")
                     else "other")
         init(self, plan, *args, **kwargs)
-    monkeypatch.setattr(_Heuristic, "__init__", spy)
+    monkeypatch.setattr(Heuristic, "__init__", spy)
     plan = Plan("complete", p)
     phases.plan_complete(plan)
     assert plan.ok
@@ -767,8 +768,8 @@ def test_pinned_electrons_make_the_voids_next_to_them_wait():
     # void next to it waits, so the first relay fills another void; without, the relay
     # fills that one first and walls it in.
     p = random_scrambled_problem(8, 12)
-    plain = _Heuristic(Plan("complete", p))
-    pinned = _Heuristic(Plan("complete", p), pins=True)
+    plain = Heuristic(Plan("complete", p))
+    pinned = Heuristic(Plan("complete", p), pins=True)
     goal, occ = pinned.goal, set(pinned.occ)
     assert {e for e in occ - goal if pinned._pinned(e)} == {(0, -1)}
     assert not can_move(goal | {(0, -1)}, (0, -1), set())
@@ -792,7 +793,7 @@ def test_the_last_resort_also_digs_from_relays_run_with_pinned_electrons_first(m
     plans = []
     for pins in (True, False):
         if not pins:
-            monkeypatch.setattr(_Heuristic, "_pinned", lambda self, e: False)
+            monkeypatch.setattr(Heuristic, "_pinned", lambda self, e: False)
         plan = Plan("complete", p)
         phases.plan_complete(plan)
         assert plan.ok

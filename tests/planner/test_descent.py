@@ -5,16 +5,16 @@ import random
 
 import pytest
 
-from planner_svc import descent
-from planner_svc.complete import phases
-from planner_svc.complete.relays import _Heuristic
-from planner_svc.complete.steps import play
-from planner_svc.bounds import (assignment_lower_bound, random_blob, random_problem,
+from planner_svc.planners import descent
+from planner_svc.planners.complete import phases
+from planner_svc.planners.complete.relays import Heuristic
+from planner_svc.planners.complete.steps import play
+from planner_svc.planners.bounds import (assignment_lower_bound, random_blob, random_problem,
                                 random_scrambled_problem, scramble)
-from planner_svc.descent import Assignment, descend
-from planner_svc.moves import GOAL_OFFSET, enterable, is_cut, lone_steps
-from planner_svc.plan import Plan, Problem, validate
-from planner_svc.rules import hex_distance, neighbours_xy, xy
+from planner_svc.planners.descent import Assignment, descend
+from planner_svc.planners.moves import GOAL_OFFSET, enterable, is_cut, lone_steps
+from planner_svc.planners.plan import Plan, Problem, validate
+from planner_svc.planners.rules import hex_distance, neighbours_xy, xy
 
 
 def _cells(problem):
@@ -24,13 +24,13 @@ def _cells(problem):
 def _relays_made(monkeypatch):
     """Record every relay run ``complete`` makes: (its plan, its keyword arguments)."""
     made = []
-    init = _Heuristic.__init__
+    init = Heuristic.__init__
 
     def recording(self, plan, *args, **kwargs):
         made.append((plan, kwargs))
         init(self, plan, *args, **kwargs)
 
-    monkeypatch.setattr(_Heuristic, "__init__", recording)
+    monkeypatch.setattr(Heuristic, "__init__", recording)
     return made
 
 

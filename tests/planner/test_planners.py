@@ -2,16 +2,17 @@
 
 import pytest
 
-from bus.cli import main
+from hexbench.cli import main
 from bus.scenario import load
 
-from planner_svc import planners, search, shorten
-from planner_svc.complete import phases
-from planner_svc.bounds import random_problem, random_scrambled_problem
-from planner_svc.moves import GOAL_OFFSET
-from planner_svc.plan import JOULES_PER_MOVE, Plan, Problem, validate
+from planner_svc import planners
+from planner_svc.planners import exact, shorten
+from planner_svc.planners.complete import phases
+from planner_svc.planners.bounds import random_problem, random_scrambled_problem
+from planner_svc.planners.moves import GOAL_OFFSET
+from planner_svc.planners.plan import JOULES_PER_MOVE, Plan, Problem, validate
 from planner_svc.planners import as_problem
-from planner_svc.rules import _legal_xy, xy
+from planner_svc.planners.rules import legal_xy, xy
 
 
 def run(planner, scenario):
@@ -70,20 +71,20 @@ def test_exact_estimates_the_assignment_bound_and_stays_fewest_moves():
     plan = planners.get("exact").plan(load("thesis-12"))
     assert plan.ok and plan.moves == 18
     limited = Plan("exact", as_problem(load("thesis-12")))
-    search.plan_exact(limited, max_configurations=5000)
+    exact.plan_exact(limited, max_configurations=5000)
     assert limited.ok and limited.moves == 18
     for seed in range(6):
         p = random_problem(5, seed)
         start, goal = frozenset(xy(c) for c in p.initial), frozenset(xy(c) for c in p.goal)
-        region = search.region_around(set(start | goal), search.DEFAULT_MARGIN)
-        path, _ = search.search_moves(start, goal, xy(p.fixed), set(), region, 10 ** 5)
+        region = exact.region_around(set(start | goal), exact.DEFAULT_MARGIN)
+        path, _ = exact.search_moves(start, goal, xy(p.fixed), set(), region, 10 ** 5)
 
         def successors(conf):
-            for _, m, rule in _legal_xy(set(conf), xy(p.fixed), set()):
+            for _, m, rule in legal_xy(set(conf), xy(p.fixed), set()):
                 dest = (m[0] + GOAL_OFFSET[rule][0], m[1] + GOAL_OFFSET[rule][1])
                 if dest in region:
                     yield m, rule, conf - {m} | {dest}
-        plain, _ = search.best_first(start, successors, lambda c: c == goal,
+        plain, _ = exact.best_first(start, successors, lambda c: c == goal,
                                      lambda g, c: g, 10 ** 5)
         assert path is not None and plain is not None and len(path) == len(plain)
 
@@ -112,10 +113,10 @@ def test_complete_takes_the_fewest_moves_on_small_fleets_when_the_search_finds_t
     phases._plan_phases(heuristic, phases.EXACT_LIMIT)
     shorten.shorten(heuristic)
     assert heuristic.moves == 19
-    assert search.fewer_moves(heuristic, max_configurations=100) is None and heuristic.moves == 19
-    assert search.fewer_moves(heuristic) is True and heuristic.moves == 18
+    assert exact.fewer_moves(heuristic, max_configurations=100) is None and heuristic.moves == 19
+    assert exact.fewer_moves(heuristic) is True and heuristic.moves == 18
     validate(heuristic)
-    assert search.fewer_moves(heuristic) is False and heuristic.moves == 18
+    assert exact.fewer_moves(heuristic) is False and heuristic.moves == 18
 
 
 def test_exact_proves_unreachable():

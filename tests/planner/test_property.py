@@ -6,9 +6,9 @@ import random
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from planner_svc import planners
-from planner_svc.bounds import assignment_lower_bound, random_blob
-from planner_svc.plan import Problem, validate
-from planner_svc.search import exact_reachable
+from planner_svc.planners.bounds import assignment_lower_bound, random_blob
+from planner_svc.planners.plan import Problem, validate
+from planner_svc.planners.exact import exact_reachable
 
 
 @st.composite

@@ -6,9 +6,9 @@ import pytest
 
 from bus.lattice import Cell, Direction, Joint
 
-from planner_svc.bounds import random_blob
-from planner_svc.plan import PlanError, Problem, validate
-from planner_svc.rules import (Move, apply_step, find_move, is_connected, legal_moves,
+from planner_svc.planners.bounds import random_blob
+from planner_svc.planners.plan import PlanError, Problem, validate
+from planner_svc.planners.rules import (Move, apply_step, find_move, is_connected, legal_moves,
                                move_violation, xy)
 
 
@@ -53,7 +53,7 @@ def test_every_legal_move_passes_the_checker_and_is_reversible():
 
 def test_checker_agrees_with_enumeration():
     """No move outside legal_moves passes move_violation (same rule, two evaluations)."""
-    from planner_svc.rules import RULE_OFFSETS, to_move
+    from planner_svc.planners.rules import RULE_OFFSETS, to_move
     rng = random.Random(5)
     for _ in range(40):
         occ = {xy(c) for c in random_blob(rng.randint(2, 10), rng)}

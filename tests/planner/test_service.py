@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from bus.cli import main
+from hexbench.cli import main
 from bus.lattice import Direction, Side
 from bus.scenario import load
 from planner_svc import planners
@@ -104,19 +104,19 @@ def test_thesis_profile_fleet_is_refused_with_the_reason(capsys):
 
 @pytest.mark.slow
 def test_planner_in_another_process_reaches_the_goal(tmp_path):
-    """Acceptance: ``hexbench fleet thesis-6 --clock wall`` in one process and ``python -m
-    planner_svc thesis-6 --clock wall`` in another, over zenoh on loopback."""
+    """Acceptance: ``hexbench fleet thesis-6 --clock wall`` in one process and ``hexbench
+    planner thesis-6 --clock wall`` in another, over zenoh on loopback."""
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     fleet_name = f"mp{os.getpid()}"
     port = 17000 + os.getpid() % 1000
-    fleet = subprocess.Popen([sys.executable, "-m", "bus", "fleet", "thesis-6", "--clock", "wall",
+    fleet = subprocess.Popen([sys.executable, "-m", "hexbench", "fleet", "thesis-6", "--clock", "wall",
                               "--fleet", fleet_name, "--listen", f"tcp/127.0.0.1:{port}"],
                              cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                              text=True)
     try:
         line = fleet.stdout.readline()  # the fleet says it is up before the planner starts
         assert "fleet thesis-6" in line, line
-        planner = subprocess.run([sys.executable, "-m", "planner_svc", "thesis-6", "--planner",
+        planner = subprocess.run([sys.executable, "-m", "hexbench", "planner", "thesis-6", "--planner",
                                   "thesis-parallel", "--clock", "wall", "--fleet", fleet_name,
                                   "--connect", f"tcp/127.0.0.1:{port}"],
                                  cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)

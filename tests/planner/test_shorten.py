@@ -4,13 +4,13 @@ shorter whenever the original wandered."""
 import random
 
 from planner_svc import planners
-from planner_svc.complete.steps import play
-from planner_svc.moves import lone_steps
-from planner_svc import shorten as shorten_module
-from planner_svc.bounds import random_blob, random_problem, scramble
-from planner_svc.plan import Plan, Problem, validate
-from planner_svc.rules import hex_distance, neighbours_xy, xy
-from planner_svc.shorten import drop_loops, drop_round_trips, legal, rebuild, shorten
+from planner_svc.planners.complete.steps import play
+from planner_svc.planners.moves import lone_steps
+from planner_svc.planners import shorten as shorten_module
+from planner_svc.planners.bounds import random_blob, random_problem, scramble
+from planner_svc.planners.plan import Plan, Problem, validate
+from planner_svc.planners.rules import hex_distance, neighbours_xy, xy
+from planner_svc.planners.shorten import drop_loops, drop_round_trips, legal, rebuild, shorten
 
 
 def _random_walk_plan(n: int, moves: int, seed: int) -> Plan:

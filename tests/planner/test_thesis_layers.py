@@ -8,7 +8,7 @@ so PV(12), PV(23), ME(14), ME(34) are (0,2), (2,1), (0,0), (4,0) here.
 from bus.lattice import Cell
 from bus.scenario import load
 
-from planner_svc import thesis
+from planner_svc.planners import thesis
 
 I = set(load("thesis-6").initial)
 G = set(load("thesis-6").goal)

@@ -10,7 +10,7 @@ import pytest
 
 from recordings.recorder import Recorder
 from recordings.stats import Tally
-from recordings.synthetic import Published, run_synthetic
+from synthetic import Published, run_synthetic
 
 FLEET = "rectest"
 
@@ -62,7 +62,7 @@ BOOTED_NS = 9_000_000_000  # both modules have said COMM. LISTENING (at ~8.1 s)
 def record_pair(path: Path, *, scenario: str = "pair", seed: int | None = None) -> Path:
     """Record the ``pair`` scenario booting and acknowledging :data:`PAIR_COMMANDS`."""
     from bus.scenario import load
-    from recordings.virtual_run import VirtualRun, resolve_scenario
+    from hexbench.virtual_run import VirtualRun, resolve_scenario
 
     sc = load(scenario) if seed is None else resolve_scenario(scenario, seed=seed)
     with VirtualRun(sc, record=path, argv=["test", "pair"]) as run:

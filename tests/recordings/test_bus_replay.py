@@ -7,16 +7,16 @@ import dataclasses
 
 import pytest
 
-from bus.cli import main
+from hexbench.cli import main
 from bus.clock import WallClock
 from bus.session import SessionOptions
 from bus.transport import Bus
 from bus.envelope import Envelope
-from recordings.bus_replay import BusReplay
-from recordings.compare import compare, describe_frame
-from recordings.edit import change_frame
+from hexbench.bus_replay import BusReplay
+from hexbench.compare import compare, describe_frame
+from edit import change_frame
 from recordings.reader import iter_samples, read_frames
-from recordings.virtual_run import VirtualRun
+from hexbench.virtual_run import VirtualRun
 
 
 def _ident(e: Envelope) -> tuple:
@@ -58,7 +58,7 @@ def test_wall_clock_replay_keeps_order_and_scales_time(pair_recording):
     bus = Bus(clock, "wallreplay", options=SessionOptions(isolated=True))
     got: list[Envelope] = []
     try:
-        bus.subscribe(bus.keys.frames_of("debug"), lambda k, p: got.append(Envelope.from_json(p)))
+        bus.subscribe_frames(got.append, "debug")
         replay = BusReplay.from_recording(bus, pair_recording, links=["debug"], speed=50)
         replay.schedule()
         clock.run(until=lambda: replay.done and len(got) == len(recorded), timeout_s=30)
@@ -116,7 +116,7 @@ def test_compare_reports_a_run_that_stops_short(pair_recording, tmp_path):
     """Frames the fresh run never makes: here the recording's last command is not replayed."""
     last_pc = [e for e in read_frames(pair_recording) if e.link == "pc"][-1]
     trimmed = tmp_path / "no-last-command.mcap"
-    from recordings.edit import rewrite
+    from edit import rewrite
     rewrite(pair_recording, trimmed,
             lambda s: None if s.topic == "frame/pc/pc" and Envelope.from_json(s.data).seq == last_pc.seq else s.data)
     result = compare(trimmed)

@@ -52,7 +52,7 @@ def test_sigkill_loses_at_most_the_last_second(tmp_path):
     port = _free_port()
     out = tmp_path / "kill.mcap"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "bus", "record", "--fleet", FLEET, "--listen", f"tcp/127.0.0.1:{port}",
+        [sys.executable, "-m", "hexbench", "record", "--fleet", FLEET, "--listen", f"tcp/127.0.0.1:{port}",
          "--out", str(out), "--flush-s", "0.5"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     session = None

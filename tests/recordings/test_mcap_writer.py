@@ -8,7 +8,7 @@ import subprocess
 import pytest
 from mcap.reader import make_reader
 
-from recordings.edit import rewrite
+from edit import rewrite
 from recordings.reader import iter_samples, summary
 from recordings.recorder import Recorder
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from bus.cli import main
+from hexbench.cli import main
 
 
 def test_info_json_counts(recorded, capsys):

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
-from bus.cli import main
+from hexbench.cli import main
 from recordings.player import Player
 from recordings.scene import Move, rest
 from bus.lattice import Cell

@@ -16,7 +16,7 @@ import pytest
 from mcap.reader import make_reader
 from rerun.chunk import RrdReader
 
-from bus.cli import main
+from hexbench.cli import main
 from bus.clock import VirtualClock
 from bus.scenario import load
 from bus.session import SessionOptions

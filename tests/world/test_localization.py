@@ -40,8 +40,7 @@ class Rig(FleetRig):
     def __init__(self, scenario, profile: str | None = None, power: bool = True) -> None:
         super().__init__("loc", scenario, profile)
         self.side: list[Envelope] = []
-        self.bus.subscribe(self.bus.keys.frames_of("side"),
-                           lambda k, p: self.side.append(Envelope.from_json(p)))
+        self.bus.subscribe_frames(self.side.append, "side")
         if power:
             self.boot()
             self.pc.flush()  # several modules' boot banners collided on the centre channel

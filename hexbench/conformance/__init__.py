@@ -1,0 +1,2 @@
+"""The wire-protocol conformance suite (spec §5-§9), runnable against any target:
+``pytest --pyargs hexbench.conformance --hexbench-target virtual``."""

@@ -1,0 +1,146 @@
+"""``hexbench run`` and ``hexbench planner``: a planner run, with or without its fleet.
+
+``hexbench run <scenario>`` puts the world, the virtual modules, the planner service and
+(with ``--record``) the MCAP recorder on one bus and runs to the goal. ``hexbench planner
+<scenario>`` is the planner service alone: it joins a fleet started elsewhere
+(``hexbench fleet <scenario> --clock wall``) over zenoh.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from bus import UsageError, add_bus_arguments, open_bus
+
+
+def add_run_arguments(p: argparse.ArgumentParser, *, with_fleet: bool) -> None:
+    p.add_argument("scenario", help="a built-in scenario name or a .toml file")
+    p.add_argument("--planner", default="thesis-serial",
+                   help="planner name ('hexbench plan --list'), or script:<file>; "
+                        "default thesis-serial")
+    p.add_argument("--clock", choices=["virtual", "wall"], default="virtual" if with_fleet else "wall",
+                   help="virtual: deterministic and as fast as the CPU allows (one process); "
+                        "wall: real time, for hardware and other processes")
+    p.add_argument("--seed", type=int, help="override the scenario's seed")
+    p.add_argument("--profile", choices=["v2", "thesis-2009"], help="override the scenario's profile")
+    p.add_argument("--timing", default="8,4,9", metavar="T1,T2,T3",
+                   help="rotation delays in ticks (default: the thesis's 8,4,9)")
+    if with_fleet:
+        p.add_argument("--record", type=Path, metavar="FILE.mcap", help="record the run to MCAP")
+        p.add_argument("--fault", action="append", default=[], metavar="SPEC",
+                       help="inject an actuator fault through the world, e.g. m3.S2-:off or "
+                            "m3.J4:closed (repeatable)")
+        p.add_argument("--hil-port", metavar="URL",
+                       help="the central IR transceiver of the scenario's real modules (any "
+                            "pyserial URL); default: their 'port' in the scenario")
+    add_bus_arguments(p)
+
+
+def _scenario(args: argparse.Namespace):
+    from bus.scenario import ScenarioError, load, override
+
+    try:
+        return override(load(args.scenario), seed=args.seed, profile=args.profile,
+                        faults=getattr(args, "fault", []))
+    except ScenarioError as exc:
+        raise UsageError(str(exc)) from None
+
+
+def _bridges(bus, scenario, hil_port: str | None) -> list:
+    """Serial bridges for the scenario's real modules: one for their shared central IR
+    transceiver (``--hil-port`` or the modules' ``port``), one per ``debug_port``."""
+    from hil.bridge import CentreBridge, DebugBridge
+
+    real = [m for m in scenario.modules if m.kind == "real"]
+    if not real:
+        return []
+    ports = sorted({hil_port} if hil_port else {m.port for m in real if m.port})
+    if not ports:
+        raise UsageError(f"scenario {scenario.name!r}: real modules need a serial port: give "
+                         "--hil-port URL or 'port' in their [[modules]] entry")
+    # wait=True: a port that is not there yet is a fault event and is retried, not a crash
+    out = [CentreBridge(bus, url).start(wait=True) for url in ports]
+    out += [DebugBridge(bus, m.debug_port, m.id).start(wait=True) for m in real if m.debug_port]
+    for b in out:
+        print(f"hil: bridging {b.url} ({b.link.value}) onto {bus.keys.root}", flush=True)
+    return out
+
+
+def _timing(text: str) -> tuple[int, int, int]:
+    try:
+        t = tuple(int(v) for v in text.split(","))
+        if len(t) != 3 or not all(0 <= v <= 255 for v in t):
+            raise ValueError
+    except ValueError:
+        raise UsageError(f"--timing {text!r}: expected three tick counts 0..255, e.g. 8,4,9") from None
+    return t  # type: ignore[return-value]
+
+
+#: Wall seconds the end of a run waits for its last bus samples to reach the recorder.
+DRAIN_S = 5.0
+
+
+def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
+    from bus.messages import RunMeta
+    from planner_svc import planners
+    from planner_svc.service import PlannerService
+
+    scenario = _scenario(args)
+    if not args.planner.startswith(planners.SCRIPT_PREFIX):
+        try:
+            planners.get(args.planner)
+        except planners.UnknownPlanner as exc:
+            raise UsageError(str(exc)) from None
+    elif not Path(args.planner[len(planners.SCRIPT_PREFIX):]).is_file():
+        raise UsageError(f"--planner {args.planner}: no such script file")
+    timing = _timing(args.timing)
+    if not with_fleet and args.clock == "virtual":
+        raise UsageError("a planner in its own process needs --clock wall: a virtual clock cannot "
+                         "be shared with a fleet in another process")
+    real = [m for m in scenario.modules if m.kind == "real"]
+    if real and args.clock == "virtual":
+        raise UsageError(f"scenario {scenario.name!r} has real modules "
+                         f"({', '.join(f'm{m.id}' for m in real)}): real hardware runs on the wall "
+                         "clock; use --clock wall")
+    bus = open_bus(args)
+    clock = bus.clock
+    recorder = None
+    bridges: list = []
+    try:
+        meta = RunMeta(scenario.name, scenario.profile, scenario.seed, args.planner, args.clock,
+                       list(sys.argv), {}, fleet=args.fleet)
+        if with_fleet and args.record:
+            from recordings.recorder import Recorder
+            recorder = Recorder(args.record, fleet=args.fleet, meta=meta)
+            recorder.attach(bus)
+        bus.put(bus.keys.meta, meta.to_json())
+        since = clock.now_ns()
+        print(f"run: scenario {scenario.name} ({len(scenario.modules)} modules, profile "
+              f"{scenario.profile}, seed {scenario.seed}), planner {args.planner}, clock {args.clock}"
+              + (f", faults {', '.join(map(str, scenario.faults))}" if scenario.faults else ""),
+              flush=True)
+        service = PlannerService(bus, scenario, args.planner, timing=timing,
+                                 say=lambda s: print(s, flush=True))
+        if with_fleet:  # after the service subscribed: it sees the world's first poses
+            from module_sim.fleet import Fleet
+            bridges.extend(_bridges(bus, scenario, getattr(args, "hil_port", None)))
+            fleet = Fleet(bus, scenario)
+            fleet.power_up()
+        result = service.run(since)
+        if with_fleet:
+            fleet.world.mechanics.publish_run_energy()
+            if not clock.drain(timeout_s=DRAIN_S):
+                print(f"warning: some bus samples had not arrived after {DRAIN_S:g} s; the "
+                      "recording may lack the last of them", flush=True)
+        print(result.summary(), flush=True)
+    finally:
+        for b in bridges:
+            b.close()
+        if recorder is not None:
+            tally = recorder.close()
+            print(f"recorded {tally.frames} frames, {tally.messages} samples -> "
+                  f"{', '.join(map(str, recorder.paths))}", flush=True)
+        bus.close()
+    return 0 if result.ok else 1

@@ -1,0 +1,124 @@
+"""Subcommands over the contract itself: ``decode``, ``encode``, ``scenarios``, ``monitor``;
+and ``demo``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+
+from bus import Envelope, Framer, Link, UsageError, add_bus_arguments, encode_command, lookup, open_bus
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("decode", help="decode hex bytes of a link into frames",
+                       description="Print each frame found in hex bytes: kind, function and "
+                                   "arguments, or noise with the reason.")
+    p.add_argument("--link", required=True, help="one of: " + ", ".join(link.value for link in Link))
+    p.add_argument("hex", nargs="+", help="bytes in hex; spaces, colons and 0x are ignored")
+    p.set_defaults(func=cmd_decode)
+
+    p = sub.add_parser("encode", help="build a PC command frame and print it in hex")
+    p.add_argument("function", help="name or code, e.g. MCW or 21")
+    p.add_argument("args", nargs="*", type=int, help="argument bytes in Table 3-8 order")
+    p.set_defaults(func=cmd_encode)
+
+    p = sub.add_parser("scenarios", help="list the built-in scenarios, or show one")
+    p.add_argument("name", nargs="?", help="a built-in name or a .toml path to check and show")
+    p.set_defaults(func=cmd_scenarios)
+
+    p = sub.add_parser("monitor", help="print frames and events on the bus as they pass")
+    add_bus_arguments(p)
+    p.add_argument("--link", action="append", help="only these links (repeatable)")
+    p.add_argument("--seconds", type=float, help="stop after this many seconds")
+    p.set_defaults(func=cmd_monitor)
+
+    _add_demo(sub)
+
+
+def _hex(words: list[str]) -> bytes:
+    text = re.sub(r"0x|[\s:,]", "", " ".join(words), flags=re.I)
+    if len(text) % 2 or not re.fullmatch(r"[0-9a-fA-F]*", text):
+        raise UsageError(f"{' '.join(words)!r} is not hex bytes (expected pairs of 0-9a-f, "
+                         "e.g. 2a15040804090000000023)")
+    return bytes.fromhex(text)
+
+
+def _link(name: str) -> Link:
+    try:
+        return Link(name)
+    except ValueError:
+        raise UsageError(f"no link {name!r}; links: {', '.join(link.value for link in Link)}") from None
+
+
+def cmd_decode(args: argparse.Namespace) -> int:
+    link = _link(args.link)
+    data = _hex(args.hex)
+    framer = Framer(link)
+    for t in framer.feed(data) + framer.flush():
+        print(t.frame.describe())
+    return 0
+
+
+def cmd_encode(args: argparse.Namespace) -> int:
+    try:
+        print(encode_command(lookup(args.function), *args.args).hex())
+    except (KeyError, ValueError) as exc:
+        raise UsageError(str(exc).strip('"')) from None
+    return 0
+
+
+def cmd_scenarios(args: argparse.Namespace) -> int:
+    from bus.scenario import ScenarioError, builtin_names, load
+    if not args.name:
+        for n in builtin_names():
+            print(f"{n:18} {load(n).description}")
+        return 0
+    try:
+        s = load(args.name)
+    except ScenarioError as exc:
+        raise UsageError(str(exc)) from None
+    print(json.dumps({
+        "name": s.name, "profile": s.profile, "seed": s.seed, "fixed": list(s.fixed),
+        "modules": [{"id": m.id, "cell": list(m.cell), "kind": m.kind, "orientation": m.orientation}
+                    for m in s.modules],
+        "goal": [list(c) for c in s.goal], "obstacles": [list(c) for c in s.obstacles],
+    }, indent=2))
+    return 0
+
+
+def cmd_monitor(args: argparse.Namespace) -> int:
+    bus = open_bus(args)
+    clock = bus.clock
+    links = set(args.link or [])
+
+    def on_frame(env: Envelope) -> None:
+        if not links or env.link in links:
+            print(f"{env.sim_time_ns / 1e9:12.6f} {env.link:10} {env.src:>10} -> {env.dst:<8} "
+                  f"{env.frame.describe()}", flush=True)
+
+    def on_event(key: str, payload: bytes) -> None:
+        print(f"{'':12} event {bus.keys.relative(key)} {payload.decode(errors='replace')}", flush=True)
+
+    bus.subscribe_frames(on_frame)
+    bus.subscribe(f"{bus.keys.root}/event/**", on_event)
+    bus.subscribe(bus.keys.world_event, on_event)
+    try:
+        clock.run(timeout_s=args.seconds)
+    finally:
+        bus.close()
+    return 0
+
+
+def _add_demo(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("demo", help="the end-to-end demo: thesis-6 run, MCAP, rerun replay",
+                       description="Run thesis-6 on virtual modules with the thesis planner, "
+                                   "record it to thesis-6.mcap and replay it to thesis-6.rrd "
+                                   "(in --out, default the working directory).")
+    p.add_argument("--out", help="directory for the files (default: the working directory)")
+    p.set_defaults(func=cmd_demo)
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from .demo import run_demo
+    return run_demo(args)

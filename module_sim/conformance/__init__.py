@@ -1,2 +1,0 @@
-"""The wire-protocol conformance suite (spec §5-§9), runnable against any target:
-``pytest --pyargs module_sim.conformance --hexbench-target virtual``."""
