@@ -38,6 +38,8 @@ RELAY_FRAME_LEN = 7
 MSG1_LEN = 8
 #: v2 location report body: "POS" id x+128 y+128 yref flags.
 POS_TAG = b"POS"
+#: v2 actuator report on the debug UART: "ACT" joints magnets+ magnets- (bit k-1 = J k / S k).
+ACT_TAG = b"ACT"
 COORD_OFFSET = 128
 
 
@@ -60,6 +62,7 @@ class Kind(str, Enum):
     BANNER = "banner"
     ACK = "ack"
     DEBUG_MSG = "debug-msg"
+    ACTUATORS = "actuators"
     SIDE_REPORT = "side-report"
     YREF_REPORT = "yref-report"
     POSITION = "position"
@@ -117,6 +120,7 @@ def _grammar(link: Link) -> tuple[Template, ...]:
                 t.append(Template(Kind.BANNER, p + BANNERS[name] + EOL, label=name))
             t.append(Template(Kind.ACK, p + b"ACK", 1, EOL))
         t.append(Template(Kind.DEBUG_MSG, b"MSG", 5, EOL))
+        t.append(Template(Kind.ACTUATORS, ACT_TAG, 3, EOL))
     return tuple(t)
 
 
@@ -198,6 +202,8 @@ def _view(link: Link, tpl: Template, raw: bytes) -> dict[str, Any]:
     elif k is Kind.DEBUG_MSG:
         body = raw[3:8]
         view.update(_args_view(FUNCTIONS[body[0]], body[1:], filler=ARG_UNUSED))
+    elif k is Kind.ACTUATORS:
+        view.update(actuator_report_view(raw[3:6]))
     elif k in (Kind.SIDE_REPORT, Kind.YREF_REPORT):
         b = raw[6]
         view["byte"] = b
@@ -348,6 +354,32 @@ def encode_debug_msg(relay_body: bytes) -> bytes:
     if len(relay_body) != 5:
         raise ValueError("a relay body is 5 bytes: code a b c d")
     return b"MSG" + bytes(relay_body) + EOL
+
+
+def _mask(bits: Iterable[bool]) -> int:
+    return sum(1 << k for k, on in enumerate(bits) if on)
+
+
+def encode_actuator_report(joints_open: Iterable[bool], magnets: Iterable[int]) -> bytes:
+    """v2 control board's debug ``ACT`` line: which solenoids are energised (J1..J6) and which
+    magnet relays are on (S1..S6, positive and negative), one bit each, ``0A 0D``.
+    ``magnets`` as in :class:`bus.messages.Actuators`: +1, -1, 0, or 2 for both relays."""
+    m = list(magnets)
+    return (ACT_TAG + bytes([_mask(joints_open), _mask(v in (1, 2) for v in m),
+                             _mask(v in (-1, 2) for v in m)]) + EOL)
+
+
+def actuator_report_view(body: bytes) -> dict[str, Any]:
+    """Decode the three bytes after ``ACT``: ``joints_open`` and ``magnets`` (+1/-1/0/2)."""
+    j, pos, neg = body[:3]
+    magnets = []
+    for k in range(6):
+        p, n = pos >> k & 1, neg >> k & 1
+        magnets.append(2 if p and n else 1 if p else -1 if n else 0)
+    view: dict[str, Any] = {"joints_open": [bool(j >> k & 1) for k in range(6)], "magnets": magnets}
+    if (j | pos | neg) >> 6:
+        view["extra_bits"] = [j >> 6, pos >> 6, neg >> 6]
+    return view
 
 
 def encode_side_report(side: int) -> bytes:

@@ -64,6 +64,9 @@ class Actuators(Record):
     led_joint: list[bool]
     ir_channel: int | None  # transceiver selected by the IR multiplexer (0 = centre)
     ports: dict[str, dict[str, int]] = field(default_factory=dict)  # {"ctrl": {"A": 0x04,..}, "comm": ..}
+    #: who saw these bits: "virtual" (a virtual module), "twin" (the world's copy of a real
+    #: module) or "serial" (a real board's actuator report, read on its debug UART)
+    origin: str = "virtual"
 
 
 @dataclass

@@ -259,13 +259,33 @@ def _build(d: dict[str, Any], source: str, text: str) -> Scenario:
                     source=source, ir_baud=ir_baud, bit_error_rate=float(ber), faults=faults)
 
 
+def parse_real(spec: str) -> tuple[int, str, str | None]:
+    """``ID=PORT`` or ``ID=PORT,DEBUG_PORT`` (``--real``): module ``ID`` is a real board
+    whose central IR transceiver is on ``PORT`` and whose debug UART1 is on ``DEBUG_PORT``."""
+    ident, sep, ports = spec.partition("=")
+    port, _, debug = ports.partition(",")
+    if not sep or not ident.strip().lstrip("m").isdigit() or not port:
+        raise ScenarioError(f"--real {spec!r}: expected ID=PORT or ID=PORT,DEBUG_PORT, "
+                            "e.g. 1=/dev/ttyUSB0,/dev/ttyUSB1")
+    return int(ident.strip().lstrip("m")), port, debug or None
+
+
 def override(sc: Scenario, *, seed: int | None = None, profile: str | None = None,
-             faults: list[str] = ()) -> Scenario:
+             faults: list[str] = (), real: list[str] = ()) -> Scenario:
     """A copy of ``sc`` with command-line overrides; extra fault specs are checked against
-    the fleet (:class:`ScenarioError` names the bad one)."""
+    the fleet, and ``real`` specs (:func:`parse_real`) make modules real boards on ports
+    (:class:`ScenarioError` names the bad one)."""
     import dataclasses
 
     ids = {f"m{m.id}" for m in sc.modules}
+    boards = {}
+    for spec in real:
+        ident, port, debug = parse_real(spec)
+        if f"m{ident}" not in ids:
+            raise ScenarioError(f"--real {spec}: scenario {sc.name!r} has no module m{ident}")
+        boards[ident] = (port, debug)
+    modules = [dataclasses.replace(m, kind="real", port=boards[m.id][0], debug_port=boards[m.id][1])
+               if m.id in boards else m for m in sc.modules]
     extra = []
     for spec in faults:
         try:
@@ -277,6 +297,6 @@ def override(sc: Scenario, *, seed: int | None = None, profile: str | None = Non
         extra.append(f)
     if profile is not None and profile not in PROFILES:
         raise ScenarioError(f"profile {profile!r}: expected one of {', '.join(PROFILES)}")
-    return dataclasses.replace(sc, faults=list(sc.faults) + extra,
+    return dataclasses.replace(sc, modules=modules, faults=list(sc.faults) + extra,
                                seed=sc.seed if seed is None else seed,
                                profile=profile or sc.profile)

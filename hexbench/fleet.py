@@ -27,6 +27,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, help="override the scenario's seed")
     p.add_argument("--fault", action="append", default=[], metavar="SPEC",
                    help="inject an actuator fault, e.g. m3.S2-:off (repeatable)")
+    p.add_argument("--real", action="append", default=[], metavar="ID=PORT[,DEBUG_PORT]",
+                   help="module ID is a real board (bridged by 'hexbench hil'): the world runs "
+                        "its twin; repeatable")
     add_bus_arguments(p)
     p.set_defaults(func=cmd_fleet)
 
@@ -37,7 +40,8 @@ def cmd_fleet(args: argparse.Namespace) -> int:
     from module_sim.fleet import Fleet
 
     try:
-        sc = override(load(args.scenario), seed=args.seed, profile=args.profile, faults=args.fault)
+        sc = override(load(args.scenario), seed=args.seed, profile=args.profile, faults=args.fault,
+                      real=args.real)
     except (ScenarioError, ValueError) as exc:
         raise UsageError(str(exc)) from None
     if args.clock == "virtual" and args.seconds is None:

@@ -27,6 +27,10 @@ def add_run_arguments(p: argparse.ArgumentParser, *, with_fleet: bool) -> None:
     p.add_argument("--profile", choices=["v2", "thesis-2009"], help="override the scenario's profile")
     p.add_argument("--timing", default="8,4,9", metavar="T1,T2,T3",
                    help="rotation delays in ticks (default: the thesis's 8,4,9)")
+    p.add_argument("--real", action="append", default=[], metavar="ID=PORT[,DEBUG_PORT]",
+                   help="module ID is a real board: its central IR transceiver on PORT and its "
+                        "debug UART1 on DEBUG_PORT (pyserial URLs); repeatable. The world runs "
+                        "a twin of it (docs/hil.md)")
     if with_fleet:
         p.add_argument("--record", type=Path, metavar="FILE.mcap", help="record the run to MCAP")
         p.add_argument("--fault", action="append", default=[], metavar="SPEC",
@@ -43,7 +47,7 @@ def _scenario(args: argparse.Namespace):
 
     try:
         return override(load(args.scenario), seed=args.seed, profile=args.profile,
-                        faults=getattr(args, "fault", []))
+                        faults=getattr(args, "fault", []), real=args.real)
     except ScenarioError as exc:
         raise UsageError(str(exc)) from None
 
@@ -66,6 +70,35 @@ def _bridges(bus, scenario, hil_port: str | None) -> list:
     for b in out:
         print(f"hil: bridging {b.url} ({b.link.value}) onto {bus.keys.root}", flush=True)
     return out
+
+
+def _twin_checks(bus, scenario, fleet, bridges: list, hil_port: str | None) -> list:
+    """A live differential for every real module alone on its port: its answers on the
+    centre channel against its twin's (several boards behind one transceiver cannot be told
+    apart there)."""
+    from hil.bridge import CentreBridge, DebugBridge
+    from module_sim.twin import TwinCheck
+
+    def say(d) -> None:
+        print(f"{'twin view' if d.explained else 'twin diverged'}: {d.describe(bus.clock.started_ns)}",
+              flush=True)
+
+    real = [m for m in scenario.modules if m.kind == "real"]
+    checks = []
+    for bridge in bridges:
+        if isinstance(bridge, DebugBridge):  # one board's debug lines and actuator reports
+            checks.append(TwinCheck(bus, fleet.twins[bridge.module_id], bridge.src, link="debug",
+                                    on_difference=say))
+            continue
+        on_port = [m for m in real if (hil_port or m.port) == bridge.url]
+        if len(on_port) != 1:
+            if on_port:
+                print(f"twin check: {len(on_port)} real modules share {bridge.url}: their answers "
+                      "cannot be told apart there, so they are not compared with their twins",
+                      flush=True)
+            continue
+        checks.append(TwinCheck(bus, fleet.twins[on_port[0].id], bridge.src, on_difference=say))
+    return checks
 
 
 def _timing(text: str) -> tuple[int, int, int]:
@@ -108,6 +141,7 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
     clock = bus.clock
     recorder = None
     bridges: list = []
+    checks: list = []
     try:
         meta = RunMeta(scenario.name, scenario.profile, scenario.seed, args.planner, args.clock,
                        list(sys.argv), {}, fleet=args.fleet)
@@ -127,6 +161,7 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
             from module_sim.fleet import Fleet
             bridges.extend(_bridges(bus, scenario, getattr(args, "hil_port", None)))
             fleet = Fleet(bus, scenario)
+            checks = _twin_checks(bus, scenario, fleet, bridges, getattr(args, "hil_port", None))
             fleet.power_up()
         result = service.run(since)
         if with_fleet:
@@ -134,6 +169,8 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
             if not clock.drain(timeout_s=DRAIN_S):
                 print(f"warning: some bus samples had not arrived after {DRAIN_S:g} s; the "
                       "recording may lack the last of them", flush=True)
+        for check in checks:
+            print(check.summary(), flush=True)
         print(result.summary(), flush=True)
     finally:
         for b in bridges:

@@ -50,11 +50,21 @@ class StandIn:
 
     ``line`` is a :class:`~hil.pty.Pty` or a pyserial URL; ``debug_line`` likewise for the
     control board's debug UART1 (4800 baud). Call :meth:`start` to power the module up.
+
+    To play a faulty or older board: ``wrong_ack=n`` flips a bit of the code byte of the
+    n-th ACK it sends (a board that disagrees with its program once), and
+    ``actuator_reports=False`` keeps the v2 actuator reports off the debug line (a board
+    whose firmware sends none).
     """
 
     def __init__(self, line: Pty | str, *, module_id: int = 1, profile: str = "v2",
-                 baud: int = Baud.IR, debug_line: Pty | str | None = None) -> None:
+                 baud: int = Baud.IR, debug_line: Pty | str | None = None,
+                 wrong_ack: int | None = None, actuator_reports: bool = True) -> None:
         self.profile = get_profile(profile)
+        self.wrong_ack = wrong_ack
+        self.actuator_reports = actuator_reports
+        self.acks_sent = 0
+        self._tail = b""  # the last bytes sent, to find ACK code bytes
         self.module_id = module_id
         self.baud = baud
         self.line = line
@@ -175,7 +185,20 @@ class StandIn:
     def _on_module_light(self, key: str, payload: bytes) -> None:
         burst = Burst.from_dict(json.loads(payload))
         if burst.transceiver == 0:  # side transceivers face no neighbour here
-            self._send(burst.data, burst.starts, burst.byte_ns)
+            self._send(self._falsify(burst.data), burst.starts, burst.byte_ns)
+
+    def _falsify(self, data: bytes) -> bytes:
+        """``wrong_ack``: the code byte of that ACK goes out with bit 5 flipped."""
+        if self.wrong_ack is None:
+            return data
+        out = bytearray(data)
+        for i, b in enumerate(out):
+            if self._tail == b"ACK":
+                self.acks_sent += 1
+                if self.acks_sent == self.wrong_ack:
+                    out[i] = b ^ 0x20
+            self._tail = (self._tail + bytes([b]))[-3:]
+        return bytes(out)
 
     def _send(self, data: bytes, starts: list[int], byte_ns: int) -> None:
         for byte, start in zip(data, starts):
@@ -192,7 +215,7 @@ class StandIn:
             self.booted.set()
 
     def _on_debug_frame(self, env: Envelope) -> None:
-        if self._debug is not None:
+        if self._debug is not None and (self.actuator_reports or env.kind != Kind.ACTUATORS.value):
             self._debug.write(env.raw)
 
     # -- the line -> the module's centre transceiver (clock thread) -------------------------------
@@ -218,6 +241,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--profile", default="v2", help="firmware profile: v2 (default) or thesis-2009")
     p.add_argument("--baud", type=int, default=int(Baud.IR), help="IR baud rate (default 300)")
     p.add_argument("--seconds", type=float, help="stop after this many seconds (default: run until Ctrl-C)")
+    p.add_argument("--wrong-ack", type=int, metavar="N",
+                   help="flip a bit of the code byte of the N-th ACK sent (to see a twin check catch it)")
+    p.add_argument("--no-actuator-reports", action="store_true",
+                   help="keep the v2 actuator reports off the debug line (a board that sends none)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -227,7 +254,8 @@ def run(args: argparse.Namespace) -> int:
         line: Pty | str = Pty(args.link) if args.pty else args.port
         debug = Pty(args.debug_pty) if args.debug_pty else None
         standin = StandIn(line, module_id=args.module, profile=args.profile, baud=args.baud,
-                          debug_line=debug).start()
+                          debug_line=debug, wrong_ack=args.wrong_ack,
+                          actuator_reports=not args.no_actuator_reports).start()
     except (ValueError, serial.SerialException, OSError) as exc:
         print(f"hexbench standin: error: {exc}", file=sys.stderr)
         return 2

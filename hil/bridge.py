@@ -6,7 +6,9 @@
   hears a real module exactly as it hears a virtual one, and they are framed with the
   centre-link framer and published as frames with ``origin = "serial"``.
 * :class:`DebugBridge` — a module's debug UART1 (control board, 4800 baud): frames on
-  ``frame/debug/m<id>.ctrl`` with ``origin = "serial"``.
+  ``frame/debug/m<id>.ctrl`` with ``origin = "serial"``; a v2 board's actuator reports
+  (``ACT``) also become the module's ``world/actuators/m<id>`` records, so the world moves
+  the real module's simulated body from its real bits.
 
 Bytes are timestamped when they arrive (wall clock). When the port disappears, the
 bridge flushes its framer (a truncated frame becomes a noise frame: nothing captured is
@@ -23,10 +25,11 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from bus.codec import Link
+from bus.codec import Kind, Link
 from bus.framer import Framer, Timed
 from bus.ir import Burst
-from bus.keys import PC, board_endpoint
+from bus.keys import PC, board_endpoint, module_endpoint
+from bus.messages import Actuators
 from bus.timing import Baud
 from bus.transport import Bus
 
@@ -105,6 +108,10 @@ class SerialBridge:
                                    first_byte_ns=t.t_first_ns - self.times.byte_ns,
                                    origin=ORIGIN, channel=self.channel)
             self.frames_published += 1
+            self.on_frame(t)
+
+    def on_frame(self, t: Timed) -> None:
+        """What else a frame is (hook for subclasses)."""
 
     # -- faults (clock thread) -------------------------------------------------------------------
     def _on_fault(self, error: str) -> None:
@@ -168,6 +175,19 @@ class DebugBridge(SerialBridge):
         super().__init__(bus, url, baud=baud, link=Link.DEBUG, src=board_endpoint(module_id, "ctrl"),
                          dst="terminal", name=name, backoff=backoff, opener=opener)
         self.module_id = module_id
+        self.reports = 0
+
+    def on_frame(self, t: Timed) -> None:
+        """An actuator report is the module's actuator state: the board's own bits (LEDs and
+        the IR multiplexer are the comm board's, which reports none)."""
+        if t.frame.kind is not Kind.ACTUATORS:
+            return
+        v = t.frame.view
+        self.reports += 1
+        self.bus.put(self.bus.keys.actuators(module_endpoint(self.module_id)), Actuators(
+            module=module_endpoint(self.module_id), sim_time_ns=t.t_last_ns,
+            joints_open=list(v["joints_open"]), magnets=list(v["magnets"]), led_pos=[False] * 6,
+            led_neg=[False] * 6, led_joint=[False] * 6, ir_channel=None, origin=ORIGIN).to_json())
 
 
 __all__ = ["CentreBridge", "DebugBridge", "FAULT", "ORIGIN", "RECOVERED", "SerialBridge", "TX_LOST"]

@@ -21,6 +21,12 @@ for _p in JOINT.values():
     _ALL_JOINTS[_p.port] |= _p.mask
 
 
+#: The port bits an actuator report covers: solenoids and magnet relays (Table 3-3).
+_ACTUATOR_MASK: dict[str, int] = {}
+for _p in (*JOINT.values(), *MAGNET_POS.values(), *MAGNET_NEG.values()):
+    _ACTUATOR_MASK[_p.port] = _ACTUATOR_MASK.get(_p.port, 0) | _p.mask
+
+
 def _keep_mask(port: str) -> int:
     """SxOffAll clears PORTB and PORTD except the UART pins."""
     return sum(p.mask for p in CONTROL_UART_PINS if p.port == port)
@@ -36,6 +42,12 @@ class ControlBoard(Mcu):
         self.uart0 = Uart(self, "uart0", Baud.UART0)
         self.uart1 = Uart(self, "uart1", Baud.DEBUG)
         self.executed: list[int] = []  # codes run, for tests and the world
+        # v2 actuator reports: sent once the board listens (not during the boot's joint
+        # test, whose report would delay the banners and the handshake), from a transmit
+        # buffer the UDRE interrupt empties, so the program never waits for them
+        self._reporting = False
+        self._report_due = False
+        self._reported: bytes | None = None
 
     # -- outputs (Table 3-3) ------------------------------------------------------------
     def _on(self, pin: Pin) -> None:
@@ -57,6 +69,27 @@ class ControlBoard(Mcu):
     def JxCloseAll(self) -> None:
         for port, mask in _ALL_JOINTS.items():
             self.clear_bits(port, mask)
+
+    # -- v2 actuator report (docs/protocol.md) --------------------------------------------------
+    def _write(self, port: str, value: int) -> None:
+        changed = self.port[port] ^ value
+        super()._write(port, value)
+        if changed & _ACTUATOR_MASK.get(port, 0) and self._reporting and not self._report_due:
+            self._report_due = True  # one report for all the bits a step changes at once
+            self.clock.call_later(0, self._report)
+
+    def _report(self) -> None:
+        self._report_due = False
+        bits = [bool(self.port[JOINT[j].port] & JOINT[j].mask) for j in range(1, 7)]
+        magnets = []
+        for s in range(1, 7):
+            pos = bool(self.port[MAGNET_POS[s].port] & MAGNET_POS[s].mask)
+            neg = bool(self.port[MAGNET_NEG[s].port] & MAGNET_NEG[s].mask)
+            magnets.append(2 if pos and neg else 1 if pos else -1 if neg else 0)
+        line = codec.encode_actuator_report(bits, magnets)
+        if line != self._reported:
+            self._reported = line
+            self.uart1.write(line, self.clock.now_ns())
 
     def SxP(self, i: int) -> None:
         self._on(MAGNET_POS[fold(i)])
@@ -137,6 +170,7 @@ class ControlBoard(Mcu):
             # v2: the DIP switches are the module's id; the comm board needs it for Select.
             yield Tx(u0, bytes([self.pin_in[DIP_PORT]]))
         yield Tx(u1, codec.BANNERS["CTR_LST"] + codec.EOL)
+        self._reporting = self.profile.actuator_report
         while True:
             yield from self.listen()
 

@@ -1,4 +1,5 @@
-"""A fleet: the world and a virtual module for every virtual module of a scenario."""
+"""A fleet: the world, a virtual module for every virtual module of a scenario, and a twin
+(:mod:`module_sim.twin`) for every real one."""
 
 from __future__ import annotations
 
@@ -24,6 +25,9 @@ class Fleet:
         self.modules = {m.id: VirtualModule(bus, m.id, self.profile, ir_baud=scenario.ir_baud,
                                             mux_cut=mux_cut)
                         for m in scenario.modules if m.kind == "virtual"}
+        self.twins = {m.id: VirtualModule(bus, m.id, self.profile, ir_baud=scenario.ir_baud,
+                                          mux_cut=mux_cut, origin="twin")
+                      for m in scenario.modules if m.kind == "real"}
 
     def power_up(self, stagger: bool = True, *, freeze_gc: bool = False) -> None:
         """Switch the base on: every module boots, each timer at its own (seeded) phase.
@@ -42,3 +46,6 @@ class Fleet:
         for ident in sorted(self.modules):
             offset = rng.randrange(TICK_NS) if stagger else 0
             self.bus.clock.call_at(now + offset, self.modules[ident].power_up)
+        for ident in sorted(self.twins):  # after the virtual ones: their phases stay the same
+            offset = rng.randrange(TICK_NS) if stagger else 0
+            self.bus.clock.call_at(now + offset, self.twins[ident].power_up)

@@ -54,11 +54,15 @@ class Mechanics:
         self.faults: dict[str, list[ActuatorFault]] = {}
         self.outcomes: list[Outcome] = []
         self._commanded: dict[str, tuple[list[bool], list[int]]] = {}
+        #: real modules whose board's reports differed from their twin's: moved by the board's
+        self.board_bits: set[str] = set()
+        self._board_said: dict[str, Actuators] = {}  # each board's latest report
         self._wake_at: int | None = None
         for f in faults or ():
             self.inject(f)
         bus.subscribe(bus.keys.actuators_all, self._on_actuators)
         bus.subscribe(bus.keys.world_inject, self._on_inject)
+        bus.subscribe_json(f"{bus.keys.root}/event/*", self._on_event)
 
     # -- faults -------------------------------------------------------------------------------
     def inject(self, fault: ActuatorFault) -> None:
@@ -84,8 +88,31 @@ class Mechanics:
         a = Actuators.from_json(payload)
         if a.module not in self.modules:
             return  # a module the world does not hold (another fleet's stand-in, say)
+        # A real module's body follows its twin's bits, on time, while its board's actuator
+        # reports agree with them (the twin check on the debug link); once they differ, the
+        # board's own bits, as they arrive (module_sim.twin, docs/hil.md).
+        if a.origin == "serial":
+            self._board_said[a.module] = a
+        if a.origin != "virtual" and (a.origin == "serial") != (a.module in self.board_bits):
+            return
         self._commanded[a.module] = (list(a.joints_open), list(a.magnets))
         self._feed(a.module, a.sim_time_ns, list(a.joints_open), list(a.magnets))
+
+    def bits(self, module: str) -> tuple[list[bool], list[int]] | None:
+        """The joints and magnets the body of ``module`` follows now (before faults)."""
+        return self._commanded.get(module)
+
+    def _on_event(self, key: str, d: dict) -> None:
+        """A real board's actuator report differed from its twin's: from now on the board's
+        bits move its body (the report that differed came before the check said so)."""
+        module = d.get("src")
+        if d.get("kind") != "twin-diverged" or d.get("link") != "debug" or module not in self.modules:
+            return
+        self.board_bits.add(module)
+        a = self._board_said.get(module)
+        if a is not None:
+            self._commanded[module] = (list(a.joints_open), list(a.magnets))
+            self._feed(module, a.sim_time_ns, list(a.joints_open), list(a.magnets))
 
     def _feed(self, module: str, t_ns: int, joints: list[bool], magnets: list[int]) -> None:
         t = max(t_ns, self.judge.now_ns)  # wall clock: a record may lag the judge a little

@@ -25,9 +25,16 @@ from .profiles import Profile
 
 
 class VirtualModule:
+    """Both boards of one module. ``origin`` marks what it publishes: ``"virtual"``, or
+    ``"twin"`` for the world's shadow copy of a real module (:mod:`module_sim.twin`)."""
+
     def __init__(self, bus: Bus, module_id: int, profile: Profile, *, ir_baud: int = 300,
-                 mux_cut: bool = False) -> None:
+                 mux_cut: bool = False, origin: str = "virtual") -> None:
         self.bus = bus
+        self.origin = origin
+        #: side-IR bytes its comm board took in: light a real board beside virtual
+        #: neighbours never gets, so a twin that heard some may know more than its board
+        self.side_bytes_heard = 0
         # mux_cut: a multiplexer switch during an IR burst moves the rest of it to the new
         # transceiver (docs/protocol.md, emulation notes). Off: a burst goes out whole on the
         # transceiver selected when it was written.
@@ -99,7 +106,7 @@ class VirtualModule:
 
     def _publish_frame(self, frame, src, dst, t_last, first, channel) -> None:
         self.bus.publish_frame(frame, src=src, dst=dst, sim_time_ns=t_last, first_byte_ns=first,
-                               channel=channel)
+                               channel=channel, origin=self.origin)
 
     # -- IR -----------------------------------------------------------------------------------
     def _ir_tx(self, data: bytes, starts: list[int]) -> None:
@@ -159,6 +166,8 @@ class VirtualModule:
 
     def _ir_rx(self, transceiver: int, byte: int, start: int, corrupt: bool) -> None:
         if self.comm.accepts_ir(transceiver, start):
+            if transceiver:
+                self.side_bytes_heard += 1
             self.comm.uart1.receive(byte)
 
     def _on_switches(self, key: str, d: dict) -> None:
@@ -199,7 +208,7 @@ class VirtualModule:
             led_neg=[not bit(m, LED_NEG[s]) for s in range(1, 7)],
             led_joint=[not bit(m, LED_JOINT[j]) for j in range(1, 7)],
             ir_channel=self.comm.ir_transceiver,
-            ports={"ctrl": dict(c), "comm": dict(m)})
+            ports={"ctrl": dict(c), "comm": dict(m)}, origin=self.origin)
 
     def _publish_actuators(self) -> None:
         self._actuators_pending = False
@@ -209,7 +218,7 @@ class VirtualModule:
             "module": a.module, "sim_time_ns": a.sim_time_ns, "joints_open": a.joints_open,
             "magnets": a.magnets, "led_pos": a.led_pos, "led_neg": a.led_neg,
             "led_joint": a.led_joint, "ir_channel": a.ir_channel, "ports": a.ports,
-            "type": Actuators.TOPIC}).encode())
+            "origin": a.origin, "type": Actuators.TOPIC}).encode())
 
 
 _dumps = json.JSONEncoder(separators=(",", ":")).encode

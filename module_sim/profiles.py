@@ -22,12 +22,14 @@ class Profile:
     fixed_side_localize: bool
     #: Select, Report, Move (codes 60..62) and the id byte after the 'L' handshake.
     addressing: bool
+    #: The control board reports its solenoid and magnet bits on the debug UART (``ACT``).
+    actuator_report: bool = False
 
 
 THESIS_2009 = Profile("thesis-2009", sccw_both_negative=True, boot_assumes_yref=True,
                       fixed_side_localize=True, addressing=False)
 V2 = Profile("v2", sccw_both_negative=False, boot_assumes_yref=False,
-             fixed_side_localize=False, addressing=True)
+             fixed_side_localize=False, addressing=True, actuator_report=True)
 PROFILES = {p.name: p for p in (THESIS_2009, V2)}
 
 

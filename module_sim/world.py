@@ -117,17 +117,20 @@ class World:
 
     # -- the IR medium -------------------------------------------------------------------------------
     def _receivers(self, src: str, transceiver: int) -> list[tuple[str, int]]:
+        """Who receives light sent on ``transceiver``. A real module's light here is its
+        twin's (:mod:`module_sim.twin`): the twin hears what its board hears from the PC and
+        from virtual neighbours, and its side light reaches them; only its centre light
+        stays in the world (the PC hears the board itself)."""
         if src == PC or not src.startswith("m"):
-            return [(b.module, 0) for b in self.bodies.values() if b.kind == "virtual"] \
-                if transceiver == 0 else []
+            return [(b.module, 0) for b in self.bodies.values()] if transceiver == 0 else []
         me = self.bodies.get(src.split(".")[0])
         if me is None:
             return []
-        if transceiver == 0:
-            return [(PC, 0)]  # the centre transceivers face the PC's, not each other
+        if transceiver == 0:  # the centre transceivers face the PC's, not each other
+            return [(PC, 0)] if me.kind == "virtual" else []
         g = body_to_global(transceiver, me.orientation)
         other = self.at(me.cell.neighbour(g))
-        if other is None or other.kind != "virtual":
+        if other is None:
             return []
         return [(other.module, int(global_to_body(Side(g).facing, other.orientation)))]
 

@@ -9,6 +9,11 @@ the bring-up says so.
 Positions come back in the reference's frame (it is (0,0), Yref 0 after ``Ref``). They
 are turned into the scenario's global frame with the fixed cell and the reference's
 declared orientation (:func:`bus.lattice.rotate_offset`).
+
+A real board beside virtual neighbours hears none of their side light, so it cannot be
+localized by them; its twin in the world (:mod:`module_sim.twin`) can. Where the board
+reports L=0 and its twin, answering the same ``Report``, L=1, the twin's report is used and
+the bring-up says so (the twin check records it as a ``twin-view`` event).
 """
 
 from __future__ import annotations
@@ -16,6 +21,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Callable
 
+from bus.codec import Kind, Link
+from bus.envelope import Envelope
 from bus.errors import HexbenchError
 from bus.functions import FunctionCode as F
 from bus.lattice import Cell, rotate_offset
@@ -70,6 +77,18 @@ class BringUp:
         self.profile = profile or scenario.profile
         self.say = say
         self.localize_steps = 0
+        self.kinds = {m.id: m.kind for m in scenario.modules}
+        self.twins: set[int] = set()  # real modules whose twin is heard on the bus
+        self._twin_report: dict[int, Envelope] = {}
+        pc.bus.subscribe_frames(self._on_centre, Link.CENTRE.value)
+
+    def _on_centre(self, env: Envelope) -> None:
+        if env.origin != "twin":
+            return
+        ident = int(env.src[1:].split(".")[0])
+        self.twins.add(ident)
+        if env.kind == Kind.POSITION.value:
+            self._twin_report[ident] = env
 
     # -- helpers ---------------------------------------------------------------------------------
     def command(self, fn: int, *args: int, timeout_s: float = 5.0, what: str = "") -> None:
@@ -95,15 +114,31 @@ class BringUp:
             self.select(ident)
             mark = len(self.pc.received)
             self.pc.send(F.Report)
+            sent = self.pc.bus.clock.now_ns()
             try:
                 r = self.pc.expect("position", since=mark, timeout_s=5.0, id=ident)
                 # the ACK follows the report: a module still talking misses the next frame
                 self.pc.expect("ack", since=self.pc.received.index(r) + 1, timeout_s=5.0,
                                byte=int(F.Report))
-                return dict(r.frame.view)
+                return self._or_twins(ident, dict(r.frame.view), sent)
             except ExpectTimeout as exc:
                 last = str(exc)
         raise BringUpError(f"m{ident}: no location report after {RETRIES} tries ({last})")
+
+    def _or_twins(self, ident: int, report: dict, sent_ns: int) -> dict:
+        """A real board's report, or its twin's answer to the same ``Report`` where only the
+        twin is localized (it heard neighbours the board cannot)."""
+        twin = self._twin_report.get(ident)
+        if report["localized"] or twin is None or twin.sim_time_ns < sent_ns:
+            return report
+        view = dict(twin.frame.view)
+        if not view.get("localized"):
+            return report
+        self.say(f"bring-up: m{ident} (real) is not localized on its board, which hears no "
+                 f"virtual neighbour: using its twin's report x={view['x']} y={view['y']} "
+                 f"yref={view['yref']}")
+        view["source"] = "twin"
+        return view
 
     # -- the bring-up ----------------------------------------------------------------------------
     def wait_boot(self, since_ns: int = 0) -> None:
@@ -130,9 +165,9 @@ class BringUp:
         n = len(virtual_or_real)
         while True:
             pending = [i for i in sorted(reports) if not reports[i]["localized"]]
-            # a real module cannot exchange side IR with virtual neighbours (docs/hil.md):
-            # it is only waited for while a real neighbour could still localize it
-            if not [i for i in pending if virtual_or_real[i] == "virtual"]:
+            # a real board cannot exchange side IR with virtual neighbours (docs/hil.md): it
+            # is waited for where its twin can be localized in its place
+            if not [i for i in pending if virtual_or_real[i] == "virtual" or i in self.twins]:
                 break
             if self.localize_steps >= n:
                 raise BringUpError(f"localization: {', '.join(f'm{i}' for i in pending)} still not "

@@ -14,8 +14,9 @@ For a move of the module at ``mobile`` (Table 4-3 row ``joint``/``direction``, a
    stops the run with a :class:`MoveFailed` naming the module, the move and the cause
    (the world's refusal or fault reason when it gave one).
 
-A real module has no world behind it: its belief follows the acknowledged move (and the
-location report, when the hil issue's bridge supplies one).
+A real module is verified like a virtual one: the world moves its simulated body from its
+board's actuator reports, or from its twin's bits (module_sim.twin). Only with no world on
+the bus does its belief follow the acknowledged move and its location report.
 """
 
 from __future__ import annotations
@@ -129,9 +130,9 @@ class Executor:
                     self.bringup.command(F.JxClose, body_joint, what=f"m{ident} JxClose({body_joint})")
         mob.cell = move.goal
         mob.orientation = orientation_after(mob.orientation, rule.direction)
-        if real:
+        if real and not self.truth.present:
             self._confirm_real(move, mob, desc)
-        else:
+        else:  # a world moves every body, a real module's from its board's bits or its twin's
             self._verify(move, mid, desc, mark_ev)
         self.moves_done += 1
 

@@ -3,7 +3,7 @@
 import pytest
 
 from bus.lattice import Cell
-from bus.scenario import ScenarioError, builtin_names, load, loads
+from bus.scenario import ScenarioError, builtin_names, load, loads, override
 
 BUILTINS = ["thesis-6", "thesis-6-reverse", "thesis-12", "thesis-sim", "pair", "localization"]
 
@@ -66,3 +66,20 @@ def test_error_names_the_line(tmp_path):
 def test_unknown_builtin_suggests():
     with pytest.raises(ScenarioError, match="did you mean 'thesis-6'"):
         load("thesis-7")
+
+
+def test_real_overrides_make_boards_on_ports():
+    sc = override(load("thesis-6"), real=["2=/dev/ttyUSB0,/dev/ttyUSB1", "m5=socket://lab:7000"])
+    by_id = {m.id: m for m in sc.modules}
+    assert (by_id[2].kind, by_id[2].port, by_id[2].debug_port) == ("real", "/dev/ttyUSB0", "/dev/ttyUSB1")
+    assert (by_id[5].kind, by_id[5].port, by_id[5].debug_port) == ("real", "socket://lab:7000", None)
+    assert {m.kind for m in sc.modules if m.id not in (2, 5)} == {"virtual"}
+
+
+@pytest.mark.parametrize("spec, needle", [
+    ("2", "expected ID=PORT"), ("x=/dev/tty0", "expected ID=PORT"), ("2=", "expected ID=PORT"),
+    ("9=/dev/tty0", "has no module m9"),
+])
+def test_bad_real_overrides_say_what_is_wrong(spec, needle):
+    with pytest.raises(ScenarioError, match=needle):
+        override(load("thesis-6"), real=[spec])
