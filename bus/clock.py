@@ -6,9 +6,9 @@ samples the clock hands them. All callbacks run on the thread that calls
 
 * :class:`WallClock` follows real time (hardware in the loop).
 * :class:`VirtualClock` is a deterministic discrete-event scheduler: time jumps
-  to the next pending event, and only after every sample published on the bus
-  has been delivered to every local subscriber and handled. Ties are broken by
-  scheduling order, and samples are handled in publish order, so the same
+  to the next pending event, and only after every sample published in the process
+  has been handled (the bus puts them in the inbox as it publishes them). Ties are
+  broken by scheduling order, and samples are handled in publish order, so the same
   scenario and seed give the same frames at the same sim times.
 """
 
@@ -57,10 +57,6 @@ class Clock(ABC):
         self._stopped = False
         self.error: BaseException | None = None
         self.started_ns = 0  # now_ns() when the clock was made (wall clocks: Unix time)
-        # Samples published to local subscribers but not yet posted. zenoh runs each
-        # subscriber's callback on its own thread, so a busy one (a recorder's, which takes
-        # everything) can lag behind the others: only this count says when all caught up.
-        self._in_flight = 0
 
     # -- time -----------------------------------------------------------------------
     @abstractmethod
@@ -90,28 +86,6 @@ class Clock(ABC):
             key = order if order is not None else (float("inf"), next(self._arrivals))
             self._inbox.append((key, fn, args))
             self._lock.notify()
-
-    # -- delivery barrier (used by bus.transport.Bus) --------------------------------------
-    def expect(self, n: int) -> None:
-        """``n`` more samples are on their way to local subscribers."""
-        if n:
-            with self._lock:
-                self._in_flight += n
-
-    def delivered(self) -> None:
-        """One expected sample has been posted."""
-        with self._lock:
-            self._in_flight -= 1
-            if self._in_flight <= 0:
-                self._lock.notify_all()
-
-    def post_delivered(self, fn: Callable[..., Any], args: tuple[Any, ...],
-                       order: tuple[float, int]) -> None:
-        """Thread-safe: ``post`` an expected sample's handler and count it as delivered."""
-        try:
-            self.post(fn, *args, order=order)
-        finally:
-            self.delivered()
 
     # -- running ----------------------------------------------------------------------------
     def stop(self) -> None:
@@ -147,10 +121,9 @@ class Clock(ABC):
 class VirtualClock(Clock):
     kind = "virtual"
 
-    def __init__(self, *, barrier_timeout_s: float = 30.0) -> None:
+    def __init__(self) -> None:
         super().__init__()
         self._now = 0
-        self._barrier_timeout_s = barrier_timeout_s
         self.events_run = 0
 
     def now_ns(self) -> int:
@@ -168,40 +141,17 @@ class VirtualClock(Clock):
     def call_later(self, delay_ns: int, fn: Callable[..., Any], *args: Any) -> Timer:
         return self.call_at(self._now + int(delay_ns), fn, *args)
 
-    def post_delivered(self, fn: Callable[..., Any], args: tuple[Any, ...],
-                       order: tuple[float, int]) -> None:
-        with self._lock:  # one lock round trip for both
-            self._inbox.append((order, fn, args))
-            self._in_flight -= 1
-            if self._in_flight <= 0:
-                self._lock.notify_all()
-
     def _settle(self) -> None:
-        """Wait for every sample in flight, then handle the inbox in publish order."""
-        while True:
-            # Fast path, without the lock: nothing in flight means every delivery has already
-            # been posted (``post`` comes before ``delivered``), and only this thread adds to
-            # the count, so an empty inbox now stays empty.
-            if self._in_flight <= 0 and not self._inbox:
-                return
+        """Handle the inbox in publish order, and what those handlers publish in turn."""
+        while self._inbox:
             with self._lock:
-                if self._in_flight > 0:
-                    deadline = time.monotonic() + self._barrier_timeout_s
-                    while self._in_flight > 0:
-                        left = deadline - time.monotonic()
-                        if left <= 0:
-                            raise ClockError(f"{self._in_flight} bus samples were published but "
-                                             f"never delivered within {self._barrier_timeout_s} s")
-                        self._lock.wait(left)
-                if not self._inbox:
-                    return
                 batch = sorted(self._inbox, key=lambda item: item[0])
                 self._inbox.clear()
             for _, fn, args in batch:
                 self._fire(fn, args)
 
     def drain(self, timeout_s: float = 5.0) -> bool:
-        self._settle()  # the barrier has its own timeout (an error: samples went missing)
+        self._settle()
         return True
 
     def run(self, *, until_ns: int | None = None, until: Callable[[], bool] | None = None,
@@ -214,10 +164,10 @@ class VirtualClock(Clock):
             while heap and heap[0][2].cancelled:
                 pop(heap)
             if not heap or heap[0][0] > self._now:
-                # Time is about to move on: first every sample published so far is delivered
-                # and handled (in publish order); its handlers may add work at this instant.
-                # Timers due now run first, so one barrier covers everything published now.
-                if self._in_flight > 0 or self._inbox:
+                # Time is about to move on: first every sample published so far is handled
+                # (in publish order); its handlers may add work at this instant. Timers due
+                # now run first, so one pass covers everything published now.
+                if self._inbox:
                     self._settle()
                     continue
             if self._stopped or (until is not None and until()):
@@ -257,11 +207,6 @@ class WallClock(Clock):
         deadline = time.monotonic() + timeout_s
         while True:
             with self._lock:
-                while self._in_flight > 0:
-                    left = deadline - time.monotonic()
-                    if left <= 0:
-                        return False
-                    self._lock.wait(left)
                 batch = self._inbox
                 self._inbox = []
             if not batch:

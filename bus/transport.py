@@ -1,6 +1,18 @@
-"""The participant's view of the bus: publish and subscribe through zenoh,
-with callbacks run on the clock thread (and counted, so a virtual clock knows
-when every sample has been delivered)."""
+"""The participant's view of the bus (ARCHITECTURE principle 1).
+
+How a sample travels:
+
+* **Inside a process**, the :class:`Bus` objects on one zenoh session share a hub: a table of
+  their subscriptions (exact keys in a dict, wildcards matched once per key and cached).
+  ``put`` hands the sample to every matching handler through the clock's inbox, on the
+  clock's thread, in publish order then subscription order: no zenoh round trip, no thread
+  per subscriber, no waiting for deliveries. A virtual clock handles the inbox before time
+  moves on, so a run is deterministic.
+* **Across processes and hosts**, every sample is also put on zenoh, for remote
+  subscribers only; samples from elsewhere arrive through one wildcard subscriber per fleet
+  (``hexbot/<fleet>/**``, remote origin only) and reach the same handlers through the inbox.
+  Threads do not grow with the fleet: one per fleet a process takes part in.
+"""
 
 from __future__ import annotations
 
@@ -8,6 +20,7 @@ import atexit
 import itertools
 import json
 import os
+from dataclasses import dataclass
 from typing import Any, Callable
 
 import zenoh
@@ -16,12 +29,103 @@ from .clock import Clock, make_clock
 from .codec import Frame
 from .envelope import SCHEMA_VERSION, Envelope
 from .errors import UsageError
-from .keys import Keys, check_chunk
+from .keys import ROOT, Keys, check_chunk
 from .session import SessionOptions, open_session
+
+Handler = Callable[[str, bytes], None]
+
+
+@dataclass(eq=False)
+class Subscription:
+    """One handler on one key expression (returned by :meth:`Bus.subscribe`)."""
+
+    keyexpr: zenoh.KeyExpr
+    handler: Handler
+    clock: Clock
+    index: int  # subscription order in the hub: ties of one sample are handled in it
+    hub: "_Hub"
+    active: bool = True
+
+    def undeclare(self) -> None:
+        """Stop delivering to the handler."""
+        if self.active:
+            self.active = False
+            self.hub.remove(self)
+
+
+class _Hub:
+    """In-process delivery for the buses of one zenoh session."""
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self.session = session
+        self.exact: dict[str, list[Subscription]] = {}  # by canonical key
+        self.wild: list[Subscription] = []
+        self.cache: dict[str, tuple[Subscription, ...]] = {}
+        self.order = itertools.count()  # publish order of every sample put here
+        self.index = itertools.count()
+        self.remote: dict[str, Any] = {}  # zenoh subscribers for samples from elsewhere
+        self.users = 0
+
+    def add(self, sub: Subscription) -> None:
+        canon = str(sub.keyexpr)
+        if "*" in canon or "$" in canon:
+            self.wild.append(sub)
+        else:
+            self.exact.setdefault(canon, []).append(sub)
+        self.cache.clear()
+        head = canon.split("/")
+        # remote samples: one wildcard subscriber per fleet (or per keyexpr outside them)
+        scope = "/".join(head[:2]) + "/**" if len(head) > 2 and head[0] == ROOT and "*" not in head[1] \
+            else canon
+        if scope not in self.remote:
+            self.remote[scope] = self.session.declare_subscriber(
+                scope, self._from_elsewhere, allowed_origin=zenoh.Locality.REMOTE)
+
+    def remove(self, sub: Subscription) -> None:
+        canon = str(sub.keyexpr)
+        group = self.wild if sub in self.wild else self.exact.get(canon, [])
+        if sub in group:
+            group.remove(sub)
+        self.cache.clear()
+
+    def matches(self, key: str) -> tuple[Subscription, ...]:
+        subs = self.cache.get(key)
+        if subs is None:
+            found = list(self.exact.get(key, ()))
+            if self.wild:
+                ke = zenoh.KeyExpr(key)
+                found += [s for s in self.wild if s.keyexpr.intersects(ke)]
+            subs = self.cache[key] = tuple(sorted(found, key=lambda s: s.index))
+        return subs
+
+    def _from_elsewhere(self, sample: zenoh.Sample) -> None:
+        """A zenoh thread: a sample another process put; its handlers run on their clocks
+        in arrival order."""
+        key = str(sample.key_expr)
+        data = sample.payload.to_bytes()
+        for sub in self.matches(key):
+            sub.clock.post(_deliver, sub, key, data)
+
+    def close(self) -> None:
+        for sub in self.remote.values():
+            try:
+                sub.undeclare()
+            except Exception:
+                pass
+        self.remote.clear()
+
+
+def _deliver(sub: Subscription, key: str, data: bytes) -> None:
+    if sub.active:
+        sub.handler(key, data)
+
+
+_HUBS: dict[int, _Hub] = {}  # by id(session)
 
 
 class Bus:
-    """One zenoh session shared by the participants of a process."""
+    """A participant's handle on the bus: publish, subscribe, events; one zenoh session,
+    shared by the buses of a process that pass it (``session=``)."""
 
     def __init__(self, clock: Clock, fleet: str = "default", *,
                  session: zenoh.Session | None = None, options: SessionOptions | None = None) -> None:
@@ -29,42 +133,35 @@ class Bus:
         self.keys = Keys(fleet)
         self._own_session = session is None
         self.session = session if session is not None else open_session(options)
-        self._subs: list[tuple[zenoh.KeyExpr, Any]] = []
-        self._match_cache: dict[str, int] = {}
-        self._exact: dict[str, int] = {}  # subscriptions to one key (canonical), by key
-        self._wild: list[zenoh.KeyExpr] = []  # subscriptions with wildcards
+        hub = _HUBS.get(id(self.session))
+        if hub is None:
+            hub = _HUBS[id(self.session)] = _Hub(self.session)
+        hub.users += 1
+        self._hub = hub
+        self._subs: list[Subscription] = []
         self._publishers: dict[str, Any] = {}
-        self._pub_order = itertools.count()
         self._seq: dict[str, int] = {}
         self.published = 0
         self.closed = False
-        # Attachment = this Bus's token + publish order: receivers know which samples are
-        # local (counted by the delivery barrier) and in which order they were published.
-        self._token = os.urandom(8)
         atexit.register(self.close)
 
     # -- publishing ----------------------------------------------------------------------
-    def _local_matches(self, key: str) -> int:
-        n = self._match_cache.get(key)
-        if n is None:
-            # a subscription without wildcards matches only its own key
-            n = self._exact.get(key, 0)
-            if self._wild:
-                ke = zenoh.KeyExpr(key)
-                n += sum(1 for k in self._wild if k.intersects(ke))
-            self._match_cache[key] = n
-        return n
-
     def put(self, key: str, payload: bytes) -> None:
-        """Publish raw bytes; attachments carry the publish order for deterministic handling."""
+        """Publish raw bytes: to this process's subscribers at once (through their clocks'
+        inboxes, in publish order), and through zenoh to everyone else's."""
         if self.closed:
             return
-        order = next(self._pub_order)
-        self.clock.expect(self._local_matches(key))
+        hub = self._hub
+        order = next(hub.order)
+        for sub in hub.matches(key):
+            sub.clock.post(_deliver, sub, key, payload, order=(order, sub.index))
         pub = self._publishers.get(key)
         if pub is None:
-            pub = self._publishers[key] = self.session.declare_publisher(key)
-        pub.put(payload, attachment=self._token + order.to_bytes(8, "big"))
+            # blocking congestion control: a slow peer slows the run down, it loses nothing
+            pub = self._publishers[key] = self.session.declare_publisher(
+                key, allowed_destination=zenoh.Locality.REMOTE,
+                congestion_control=zenoh.CongestionControl.BLOCK)
+        pub.put(payload)
         self.published += 1
 
     def put_json(self, key: str, obj: Any) -> None:
@@ -89,31 +186,13 @@ class Bus:
                                              "sim_time_ns": self.clock.now_ns(), **fields})
 
     # -- subscribing ---------------------------------------------------------------------
-    def subscribe(self, keyexpr: str, handler: Callable[[str, bytes], None]) -> Any:
-        """``handler(key, payload)`` runs on the clock thread."""
-        index = len(self._subs)
-        clock = self.clock
-        token = self._token
-
-        def on_sample(sample: zenoh.Sample) -> None:
-            att = sample.attachment
-            att = att.to_bytes() if att is not None else b""
-            key = str(sample.key_expr)
-            data = sample.payload.to_bytes()
-            if len(att) == 16 and att[:8] == token:
-                clock.post_delivered(handler, (key, data), (float(int.from_bytes(att[8:], "big")), index))
-            else:
-                clock.post(handler, key, data)
-
-        sub = self.session.declare_subscriber(keyexpr, on_sample)
-        ke = zenoh.KeyExpr(keyexpr)
-        self._subs.append((ke, sub))
-        canon = str(ke)
-        if "*" in canon or "$" in canon:
-            self._wild.append(ke)
-        else:
-            self._exact[canon] = self._exact.get(canon, 0) + 1
-        self._match_cache.clear()
+    def subscribe(self, keyexpr: str, handler: Handler) -> Subscription:
+        """``handler(key, payload)`` runs on the clock thread, for samples of this process
+        and of every other that reaches this one."""
+        sub = Subscription(zenoh.KeyExpr(keyexpr), handler, self.clock, next(self._hub.index),
+                           self._hub)
+        self._hub.add(sub)
+        self._subs.append(sub)
         return sub
 
     def subscribe_json(self, keyexpr: str, handler: Callable[[str, Any], None]) -> Any:
@@ -132,11 +211,13 @@ class Bus:
         if self.closed:
             return
         self.closed = True
-        for _, sub in self._subs:
-            try:
-                sub.undeclare()
-            except Exception:
-                pass
+        for sub in self._subs:
+            sub.undeclare()
+        hub = self._hub
+        hub.users -= 1
+        if hub.users <= 0:
+            hub.close()
+            _HUBS.pop(id(self.session), None)
         if self._own_session:
             self.session.close()
 

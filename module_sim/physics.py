@@ -273,6 +273,11 @@ class MotionJudge:
         self._flights: dict[str, _Flight] = {}
         self._reserved: dict[Cell, str] = {}  # goal and sweep cells of moves in flight
         self._now = 0
+        # Modules with a magnet pair on (an attempt): the only ones to evaluate, in the
+        # order of ``_mods`` (outcomes of one instant come out in that order), so the cost
+        # of an actuator change does not grow with the fleet.
+        self._rank = {m: k for k, m in enumerate(self._mods)}
+        self._trying: set[str] = set()
 
     # --- queries ------------------------------------------------------------------
     @property
@@ -375,11 +380,16 @@ class MotionJudge:
             out.append((f.started_ns + p.rotation_ns, 0, f.module))
             if not f.carried:
                 out.append((f.started_ns + p.carry_ns, 1, f.module))
-        for m in self._mods.values():
+        for m in self._attempting():
             for a in m.attempts.values():
                 if a.drive_since is not None and not a.done:
                     out.append((a.drive_since + p.breakaway_ns, 2, f"{m.id}/{int(a.pivot_body)}"))
         return out
+
+    def _attempting(self) -> list[_Module]:
+        """The modules with an attempt, in the order of ``_mods``."""
+        rank = self._rank
+        return [self._mods[m] for m in sorted(self._trying, key=rank.__getitem__)]
 
     def _update_attempts(self, mod: _Module, out: list[Outcome]) -> None:
         pairs = set(negative_pairs(mod.magnets))
@@ -391,6 +401,10 @@ class MotionJudge:
         for k in pairs - set(mod.attempts):
             # a pair appearing while the module is in flight is not a new attempt
             mod.attempts[k] = _Attempt(k, self._now, done=mod.id in self._flights)
+        if mod.attempts:
+            self._trying.add(mod.id)
+        else:
+            self._trying.discard(mod.id)
 
     def _refusal(self, mod: _Module, a: _Attempt) -> MoveRefused:
         if a.best is None:  # never evaluated (opened and closed at the same instant)
@@ -401,7 +415,7 @@ class MotionJudge:
         return MoveRefused(mod.id, self._now, reason, detail, data)
 
     def _evaluate_all(self, out: list[Outcome]) -> None:
-        for mod in self._mods.values():
+        for mod in self._attempting():
             if mod.id in self._flights:
                 continue
             for a in mod.attempts.values():

@@ -1,0 +1,106 @@
+"""Benchmark: a virtual fleet of 10, 100 and 1000 modules on one virtual clock, boot then busy,
+recording off and on (issue: fleet speed). Run alone: ``pytest -s tests/benchmarks/test_fleet_scale.py``
+(``HEXBENCH_SCALE_SIZES=10,100`` selects sizes).
+
+Prints per case: the real-time factor of the boot (9 s of sim time) and of the busy phase
+(every module commanded every 1.5 s), the wall cost per bus sample, peak RSS, and the
+process's threads (Python's and zenoh's, from /proc). With recording on, every sample put on a
+bus must be in the MCAP file (counted: 0 lost). The targets at 1000 modules with recording on
+(boot >= 3x, busy >= 5x real time, cost per sample <= 1.3x the cost at 10, the same thread
+count at 10 and 1000) are printed as met or missed; they do not fail the run.
+"""
+
+from __future__ import annotations
+
+import gc
+import os
+import resource
+import time
+
+import pytest
+
+from bus.timing import NS_PER_S
+from recordings.recorder import Recorder
+from test_module_bench import _fleets
+
+SIZES = [int(s) for s in os.environ.get("HEXBENCH_SCALE_SIZES", "10,100,1000").split(",")]
+BOOT_TARGET, BUSY_TARGET, COST_RATIO_TARGET = 3.0, 5.0, 1.3
+RESULTS: dict[tuple[int, bool], dict[str, float]] = {}
+
+
+def _threads() -> int:
+    return len(os.listdir("/proc/self/task"))
+
+
+@pytest.mark.parametrize("record", [False, True], ids=["recording-off", "recording-on"])
+@pytest.mark.parametrize("n", SIZES)
+def test_fleet_scale(n, record, tmp_path):
+    clock, session, buses, fleets, pcs = _fleets(n, "r" if record else "s")
+    recorders = []
+    try:
+        if record:
+            for bus in buses:
+                rec = Recorder(tmp_path / f"{bus.keys.fleet}.mcap", fleet=bus.keys.fleet)
+                rec.attach(bus)
+                recorders.append(rec)
+        t = time.perf_counter()
+        for i, fleet in enumerate(fleets):
+            fleet.power_up(freeze_gc=i == len(fleets) - 1)
+        clock.run(until_ns=9 * NS_PER_S)
+        boot_wall = time.perf_counter() - t
+        boot_samples = sum(b.published for b in buses)
+
+        def command(k: int) -> None:
+            for pc in pcs:
+                pc.send("SxP" if k % 2 == 0 else "SxOff", 1 + k % 6)
+            clock.run(until_ns=clock.now_ns() + 1_500_000_000)
+
+        command(1)  # warm-up: first use of each key declares its publisher
+        start_ns, before = clock.now_ns(), sum(b.published for b in buses)
+        t = time.perf_counter()
+        rounds = 10
+        for k in range(rounds):
+            command(k)
+        busy_wall = time.perf_counter() - t
+        busy_samples = sum(b.published for b in buses) - before
+        busy_sim = (clock.now_ns() - start_ns) / NS_PER_S
+        threads = _threads()
+        published = sum(b.published for b in buses)
+        recorded = sum(r.close().messages for r in recorders) if record else published
+        recorders.clear()
+        r = RESULTS[(n, record)] = {
+            "boot_x": 9.0 / boot_wall, "busy_x": busy_sim / busy_wall,
+            "us_per_sample": 1e6 * busy_wall / max(busy_samples, 1), "threads": threads,
+            "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+            "boot_samples": boot_samples}
+        print(f"\n[fleet scale] n={n} recording {'on' if record else 'off'}: boot {r['boot_x']:.2f}x "
+              f"real time ({boot_wall:.1f} s wall, {boot_samples} samples); busy {r['busy_x']:.2f}x "
+              f"({busy_sim:.0f} s sim in {busy_wall:.1f} s); {r['us_per_sample']:.1f} us/sample; "
+              f"peak RSS {r['rss_mb']:.0f} MB; {threads} threads; "
+              f"{published - recorded} of {published} samples lost")
+        assert recorded == published  # 0 lost
+    finally:
+        for rec in recorders:
+            rec.close()
+        for bus in buses:
+            bus.close()
+        session.close()
+        gc.unfreeze()
+
+
+def test_summary():
+    """The targets at the largest size, with recording on."""
+    big, small = max(SIZES), min(SIZES)
+    if (big, True) not in RESULTS or (small, True) not in RESULTS:
+        pytest.skip("run the whole benchmark for the summary")
+    r, s = RESULTS[(big, True)], RESULTS[(small, True)]
+    checks = {
+        f"boot >= {BOOT_TARGET}x": (r["boot_x"] >= BOOT_TARGET, f"{r['boot_x']:.2f}x"),
+        f"busy >= {BUSY_TARGET}x": (r["busy_x"] >= BUSY_TARGET, f"{r['busy_x']:.2f}x"),
+        f"cost per sample <= {COST_RATIO_TARGET}x n={small}":
+            (r["us_per_sample"] <= COST_RATIO_TARGET * s["us_per_sample"],
+             f"{r['us_per_sample'] / s['us_per_sample']:.2f}x"),
+        "threads flat": (r["threads"] == s["threads"], f"{s['threads']} -> {r['threads']}"),
+    }
+    print(f"\n[fleet scale] n={big}, recording on: "
+          + "; ".join(f"{k}: {v} ({'met' if ok else 'MISSED'})" for k, (ok, v) in checks.items()))
