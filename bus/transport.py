@@ -41,10 +41,15 @@ class Subscription:
 
     keyexpr: zenoh.KeyExpr
     handler: Handler
-    clock: Clock
+    bus: "Bus"
     index: int  # subscription order in the hub: ties of one sample are handled in it
     hub: "_Hub"
+    who: str  # the participant, for its bad-sample events
     active: bool = True
+
+    @property
+    def clock(self) -> Clock:
+        return self.bus.clock
 
     def undeclare(self) -> None:
         """Stop delivering to the handler."""
@@ -104,7 +109,7 @@ class _Hub:
         key = str(sample.key_expr)
         data = sample.payload.to_bytes()
         for sub in self.matches(key):
-            sub.clock.post(_deliver, sub, key, data)
+            sub.clock.post(_deliver_foreign, sub, key, data)
 
     def close(self) -> None:
         for sub in self.remote.values():
@@ -118,6 +123,35 @@ class _Hub:
 def _deliver(sub: Subscription, key: str, data: bytes) -> None:
     if sub.active:
         sub.handler(key, data)
+
+
+def _deliver_foreign(sub: Subscription, key: str, data: bytes) -> None:
+    """A sample from another process: one that its handler cannot take (not JSON, a field
+    missing, a value out of range) is an ``event/<participant>`` ``bad-sample``, and the
+    participant goes on. (A local sample's failure is a bug of this process: it stops the
+    run with the clock's error.)"""
+    if not sub.active:
+        return
+    try:
+        sub.handler(key, data)
+    except Exception as exc:  # errors are data: the sender is wrong, not this participant
+        bus = sub.bus
+        if not bus.closed:
+            bus.event(sub.who, "bad-sample", key=bus.keys.relative(key),
+                      reason=f"{type(exc).__name__}: {exc}"[:300], bytes=data[:256].hex(),
+                      size=len(data))
+
+
+def participant(handler: Callable[..., Any]) -> str:
+    """A name for the owner of ``handler`` in event keys: its ``name`` (``m3``, ``pc``) or its
+    class (``world``, ``mechanics``); ``bus`` for a plain function."""
+    owner = getattr(handler, "__self__", None)
+    name = getattr(owner, "name", None)
+    try:
+        return check_chunk(name) if isinstance(name, str) else type(owner).__name__.lower() \
+            if owner is not None else "bus"
+    except ValueError:
+        return type(owner).__name__.lower()
 
 
 _HUBS: dict[int, _Hub] = {}  # by id(session)
@@ -186,18 +220,20 @@ class Bus:
                                              "sim_time_ns": self.clock.now_ns(), **fields})
 
     # -- subscribing ---------------------------------------------------------------------
-    def subscribe(self, keyexpr: str, handler: Handler) -> Subscription:
+    def subscribe(self, keyexpr: str, handler: Handler, *, who: str | None = None) -> Subscription:
         """``handler(key, payload)`` runs on the clock thread, for samples of this process
-        and of every other that reaches this one."""
-        sub = Subscription(zenoh.KeyExpr(keyexpr), handler, self.clock, next(self._hub.index),
-                           self._hub)
+        and of every other that reaches this one. ``who`` names the participant in the
+        ``bad-sample`` events of samples from elsewhere it cannot take (default: the
+        handler's owner, :func:`participant`)."""
+        sub = Subscription(zenoh.KeyExpr(keyexpr), handler, self, next(self._hub.index),
+                           self._hub, who or participant(handler))
         self._hub.add(sub)
         self._subs.append(sub)
         return sub
 
     def subscribe_json(self, keyexpr: str, handler: Callable[[str, Any], None]) -> Any:
         """``handler(key, obj)`` with the payload decoded from JSON."""
-        return self.subscribe(keyexpr, lambda k, p: handler(k, json.loads(p)))
+        return self.subscribe(keyexpr, lambda k, p: handler(k, json.loads(p)), who=participant(handler))
 
     def subscribe_frames(self, handler: Callable[[Envelope], None], link: str | None = None, *,
                          keyexpr: str | None = None) -> Any:
@@ -205,7 +241,8 @@ class Bus:
         receivers get typed envelopes, as python-can's listeners get messages."""
         if keyexpr is None:
             keyexpr = self.keys.frames if link is None else self.keys.frames_of(link)
-        return self.subscribe(keyexpr, lambda k, p: handler(Envelope.from_json(p)))
+        return self.subscribe(keyexpr, lambda k, p: handler(Envelope.from_json(p)),
+                              who=participant(handler))
 
     def close(self) -> None:
         if self.closed:

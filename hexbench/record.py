@@ -35,6 +35,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=cmd_info)
 
+    p = sub.add_parser("recover", help="write a complete MCAP file from a damaged or cut-short one",
+                       description="Copy every message that can still be read (damaged chunks "
+                                   "skipped, a cut tail ended) with its channel, schema, times and "
+                                   "metadata into a new file with footer, summary and index. Exit 0 "
+                                   "if nothing was lost, 1 if something was (and say what), 2 for a "
+                                   "file that is not MCAP.")
+    p.add_argument("file", type=Path, help="the damaged .mcap (or the stem of rotated parts)")
+    p.add_argument("out", type=Path, help="the complete .mcap to write")
+    p.set_defaults(func=cmd_recover)
+
     p = sub.add_parser("replay", help="replay a recording with rerun, or back onto the bus",
                        description="--rrd/--spawn: build a rerun recording of the run (lattice, "
                                    "modules, moves, magnets, joints, LEDs, IR links, frames, planner "
@@ -114,8 +124,10 @@ def cmd_info(args: argparse.Namespace) -> int:
         raise UsageError(str(exc)) from None
     if args.json:
         print(json.dumps(s.to_dict(), indent=2, default=str))
-        return 0
+        return 1 if s.damaged else 0
     t = s.tally
+    for d in s.damaged:
+        print(f"warning: {d.describe()}", file=sys.stderr)
     print(f"file:       {', '.join(str(p) for p in s.paths)}")
     state = "complete" if s.complete else "no footer (recovered)"
     print(f"state:      {state}{'; ' + '; '.join(s.truncated) if s.truncated else ''}")
@@ -135,7 +147,25 @@ def cmd_info(args: argparse.Namespace) -> int:
     print(f"channels:   {len(s.channels)}")
     for topic, schema in sorted(s.channels.items()):
         print(f"  {topic:32} {schema:24} {t.by_topic.get(topic, 0)}")
-    return 0
+    return 1 if s.damaged else 0
+
+
+def cmd_recover(args: argparse.Namespace) -> int:
+    from recordings.recover import recover
+
+    if args.out.resolve() == args.file.resolve():
+        raise UsageError("write the recovered file somewhere else: the damaged one is the only copy")
+    try:
+        r = recover(args.file, args.out)
+    except FileNotFoundError as exc:
+        raise UsageError(str(exc)) from None
+    for d in r.damaged:
+        print(f"warning: {d.describe()}", file=sys.stderr)
+    for t in r.truncated:
+        print(f"warning: {t}: the scan ended there; what followed is lost", file=sys.stderr)
+    print(f"recovered {r.messages} messages on {r.channels} channels, {r.metadata} metadata "
+          f"record(s) -> {args.out}")
+    return 1 if r.lost else 0
 
 
 def cmd_replay(args: argparse.Namespace) -> int:

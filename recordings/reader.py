@@ -19,19 +19,40 @@ from typing import Any, Iterable, Iterator
 from mcap.exceptions import McapError
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
-from mcap.records import Channel, Chunk, Message, Metadata, Schema
+from mcap.records import Channel, Chunk, Message, MessageIndex, Metadata, Schema
 from mcap.stream_reader import StreamReader
 
 from bus.envelope import Envelope
+from bus.errors import UsageError
 
 from .meta import METADATA_NAME, from_mcap, merge
 from .schemas import kind_of
 from .stats import Tally
 
 # What a cut-short or corrupt file raises from mcap's reader (EndOfFile is a McapError;
-# struct.error for a cut length field; zstd/lz4 raise their own errors on torn chunk data).
+# struct.error for a cut length field; OverflowError or MemoryError for a huge one).
 _TRUNCATION_ERRORS: tuple[type[BaseException], ...] = (McapError, struct.error, ValueError,
-                                                       EOFError, RuntimeError, MemoryError)
+                                                       EOFError, RuntimeError, MemoryError,
+                                                       OverflowError)
+MAGIC = b"\x89MCAP0\r\n"
+
+
+class NotMcap(UsageError):
+    """A file that does not start with the MCAP magic (exit 2 in the CLI)."""
+
+
+@dataclass(frozen=True)
+class Damage:
+    """A chunk that could not be read (torn compression, CRC, a record past its end): skipped."""
+
+    path: Path
+    offset: int  # of the chunk record in the file
+    lost: int | None  # messages in it, from the message indexes after it (None: unknown)
+    reason: str
+
+    def describe(self) -> str:
+        lost = "an unknown number of" if self.lost is None else str(self.lost)
+        return f"{self.path}: damaged chunk at byte {self.offset} skipped ({self.reason}): {lost} message(s) lost"
 
 
 _decode_json = json.JSONDecoder().decode  # payloads are UTF-8: skip json.loads' encoding sniffing
@@ -90,26 +111,46 @@ class RecordingFile:
         self.error = ""
         self.metadata: list[tuple[str, dict[str, str]]] = []
         self.channels: dict[int, Channel] = {}
+        self.schemas: dict[int, Schema] = {}
         self.compression: set[str] = set()
+        self.damaged: list[Damage] = []
 
     def samples(self, topics: Iterable[str] | None = None) -> Iterator[Sample]:
         """Messages in file order (for our files: the order they were recorded)."""
         wanted = None if topics is None else set(topics)
         size = self.path.stat().st_size
         with open(self.path, "rb") as f:
+            if f.read(len(MAGIC)) != MAGIC:
+                raise NotMcap(f"{self.path} is not an MCAP file (it does not start with the MCAP magic)")
+            f.seek(0)
             reader = StreamReader(f, emit_chunks=True, record_size_limit=max(size, 1))
             records = reader.records
+            last_damage: list[Any] = []  # [offset, lost, reason] of the chunk just skipped
             while True:
+                offset = f.tell()
                 try:
                     record = next(records)
-                    inner = self._unpack(record)
                 except StopIteration:  # the footer and the closing magic were read
                     self.complete = True
+                    self._damaged(last_damage)
                     return
                 except _TRUNCATION_ERRORS as exc:
                     self.truncated = True
                     self.error = f"{type(exc).__name__}: {exc}".rstrip(": ")
+                    self._damaged(last_damage)
                     return
+                if isinstance(record, MessageIndex):
+                    if last_damage:  # the index of a skipped chunk counts what it held
+                        last_damage[1] = (last_damage[1] or 0) + len(record.records)
+                    continue
+                self._damaged(last_damage)
+                try:
+                    inner = self._unpack(record)
+                except Exception as exc:  # zstd, lz4, CRC, a record past the chunk's end
+                    if not isinstance(record, Chunk):
+                        raise
+                    last_damage[:] = [offset, None, f"{type(exc).__name__}: {exc}".rstrip(": ")[:200]]
+                    continue
                 channels = self.channels
                 for rec in inner:
                     if type(rec) is tuple:  # a message: (channel id, sequence, log, publish, data)
@@ -123,6 +164,11 @@ class RecordingFile:
                         if ch is not None and (wanted is None or ch.topic in wanted):
                             yield Sample(ch.topic, rec.log_time, rec.publish_time, rec.data, rec.sequence)
 
+    def _damaged(self, last: list[Any]) -> None:
+        if last:
+            self.damaged.append(Damage(self.path, last[0], last[1], last[2]))
+            last.clear()
+
     def _unpack(self, record: Any) -> list[Any]:
         """Records of a top-level record (a chunk's contents, CRC-checked), tracking state.
         Messages inside chunks come back as plain tuples (see :func:`chunk_records`)."""
@@ -134,6 +180,8 @@ class RecordingFile:
         for rec in inner:
             if isinstance(rec, Channel):
                 self.channels[rec.id] = rec
+            elif isinstance(rec, Schema):
+                self.schemas[rec.id] = rec
             elif isinstance(rec, Metadata):
                 self.metadata.append((rec.name, dict(rec.metadata)))
         return inner
@@ -237,6 +285,7 @@ class Summary:
     metadata: dict[str, Any]
     complete: bool  # every part has its footer
     truncated: list[str] = field(default_factory=list)  # "path: why" of parts cut short
+    damaged: list[Damage] = field(default_factory=list)  # chunks skipped
     undecodable: int = 0
     compression: list[str] = field(default_factory=list)
     channels: dict[str, str] = field(default_factory=dict)  # topic -> schema name
@@ -247,7 +296,7 @@ class Summary:
 
     def to_dict(self) -> dict[str, Any]:
         return {"paths": [str(p) for p in self.paths], "complete": self.complete,
-                "truncated": self.truncated, "duration_s": self.duration_s,
+                "truncated": self.truncated, "damaged": [d.describe() for d in self.damaged], "duration_s": self.duration_s,
                 "undecodable": self.undecodable, "compression": self.compression,
                 "metadata": self.metadata, "channels": self.channels, **self.tally.to_dict()}
 
@@ -276,6 +325,7 @@ def summary(path: str | Path) -> Summary:
             out.complete = False
         if rf.truncated:
             out.truncated.append(f"{part}: {rf.error or 'no footer'}")
+        out.damaged += rf.damaged
     out.metadata = meta
     out.compression = sorted(compression)
     return out
