@@ -118,11 +118,31 @@ def _err(source: str, text: str, key: str, expected: str, got: Any) -> ScenarioE
     return ScenarioError(f"{source}: {_line_of(text, leaf)}key '{key}': expected {expected}, got {got!r}")
 
 
+#: Coordinates a module can be told and report: MSG1 carries two decimal digits and a sign.
+COORD_LIMIT = 99
+
+
 def _cell(v: Any, key: str, source: str, text: str) -> Cell:
     if (isinstance(v, list) and len(v) == 2 and all(isinstance(c, int) and not isinstance(c, bool)
                                                     for c in v)):
+        if max(abs(v[0]), abs(v[1])) > COORD_LIMIT:
+            raise _err(source, text, key, f"coordinates within -{COORD_LIMIT}..{COORD_LIMIT} "
+                       "(what MSG1 can carry)", v)
         return Cell(v[0], v[1])
     raise _err(source, text, key, "a cell [x, y] of two integers", v)
+
+
+def _connected(cells: list[Cell]) -> list[Cell] | None:
+    """None if ``cells`` are one connected structure, else the cells cut off from the first."""
+    todo, seen, have = [cells[0]], {cells[0]}, set(cells)
+    while todo:
+        c = todo.pop()
+        for s in range(1, 7):
+            n = c.neighbour(s)
+            if n in have and n not in seen:
+                seen.add(n)
+                todo.append(n)
+    return None if len(seen) == len(have) else sorted(have - seen, key=lambda c: (c.y, c.x))
 
 
 def _cells(v: Any, key: str, source: str, text: str) -> list[Cell]:
@@ -204,6 +224,13 @@ def _build(d: dict[str, Any], source: str, text: str) -> Scenario:
         seen_cells[m.cell] = m.id
         seen_ids.add(m.id)
 
+    apart = _connected([m.cell for m in modules])
+    if apart:
+        raise ScenarioError(f"{source}: the fleet is not one connected structure: "
+                            f"{', '.join(str(list(c)) for c in apart[:6])}"
+                            f"{' ...' if len(apart) > 6 else ''} touch no module of the rest "
+                            "(it could not be localized from the fixed module, nor move)")
+
     if "goal" in d and "goal_matrix" in d:
         raise ScenarioError(f"{source}: give either 'goal' or 'goal_matrix', not both")
     if "goal" in d:
@@ -227,6 +254,11 @@ def _build(d: dict[str, Any], source: str, text: str) -> Scenario:
             raise ScenarioError(f"{source}: key 'fixed' is missing and no cell is in both the "
                                 "fleet and the goal to choose it from")
         fixed = common[0]
+    apart = _connected(goal)
+    if apart:
+        raise ScenarioError(f"{source}: {_line_of(text, 'goal')}the goal is not one connected "
+                            f"structure: {', '.join(str(list(c)) for c in apart[:6])} touch none of "
+                            "the rest")
     if fixed not in seen_cells:
         raise _err(source, text, "fixed", "the cell of one of the modules", list(fixed))
     if fixed not in goal:

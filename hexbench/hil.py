@@ -7,6 +7,8 @@ import sys
 
 from bus import UsageError, WallClock, add_bus_arguments, open_bus
 
+from .args import baud
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -17,10 +19,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "rfc2217://host:port, loop://. See docs/hil.md.")
     add_bus_arguments(p)
     p.add_argument("--port", metavar="URL", help="the central IR transceiver's serial port")
-    p.add_argument("--baud", type=int, default=300, help="IR baud rate of --port (default 300)")
+    p.add_argument("--baud", type=baud, default=300, help="IR baud rate of --port (default 300)")
     p.add_argument("--debug-port", metavar="URL", help="a module's debug UART1 (control board)")
     p.add_argument("--module", type=int, metavar="ID", help="with --debug-port: the module's id (DIP switches)")
-    p.add_argument("--debug-baud", type=int, default=4800, help="baud rate of --debug-port (default 4800)")
+    p.add_argument("--debug-baud", type=baud, default=4800, help="baud rate of --debug-port (default 4800)")
     p.add_argument("--name", help="bridge name: events on event/<name>, centre frames from <name> "
                                   "(default hil.<port name>)")
     p.add_argument("--clock", choices=["wall", "virtual"], default="wall",

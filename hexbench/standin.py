@@ -38,6 +38,8 @@ from module_sim.module import VirtualModule
 from module_sim.profiles import profile as get_profile
 
 from hil.line import ByteTimes
+
+from .args import baud
 from hil.port import LivePort, open_port
 from hil.pty import Pty
 
@@ -239,7 +241,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="also put the control board's debug UART1 on a pty linked here")
     p.add_argument("--module", type=int, default=1, help="module id (DIP switches), default 1")
     p.add_argument("--profile", default="v2", help="firmware profile: v2 (default) or thesis-2009")
-    p.add_argument("--baud", type=int, default=int(Baud.IR), help="IR baud rate (default 300)")
+    p.add_argument("--baud", type=baud, default=int(Baud.IR), help="IR baud rate (default 300)")
     p.add_argument("--seconds", type=float, help="stop after this many seconds (default: run until Ctrl-C)")
     p.add_argument("--wrong-ack", type=int, metavar="N",
                    help="flip a bit of the code byte of the N-th ACK sent (to see a twin check catch it)")
@@ -249,14 +251,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run a stand-in until ``--seconds`` pass or Ctrl-C; returns an exit status."""
+    standin = None
     try:
         get_profile(args.profile)
         line: Pty | str = Pty(args.link) if args.pty else args.port
         debug = Pty(args.debug_pty) if args.debug_pty else None
         standin = StandIn(line, module_id=args.module, profile=args.profile, baud=args.baud,
                           debug_line=debug, wrong_ack=args.wrong_ack,
-                          actuator_reports=not args.no_actuator_reports).start()
+                          actuator_reports=not args.no_actuator_reports)
+        standin.start()
     except (ValueError, serial.SerialException, OSError) as exc:
+        if standin is not None:  # its bus and clock must not keep the process alive
+            standin.close()
         print(f"hexbench standin: error: {exc}", file=sys.stderr)
         return 2
     print(f"stand-in m{args.module} ({args.profile}, {args.baud} baud) on {standin.path}"

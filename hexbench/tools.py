@@ -62,7 +62,15 @@ def cmd_decode(args: argparse.Namespace) -> int:
 
 def cmd_encode(args: argparse.Namespace) -> int:
     try:
-        print(encode_command(lookup(args.function), *args.args).hex())
+        fn = lookup(args.function)
+    except (KeyError, ValueError) as exc:
+        raise UsageError(str(exc).strip('"')) from None
+    if len(args.args) != len(fn.args):  # no silent zeros for a forgotten argument
+        sig = ", ".join(a.name for a in fn.args)
+        raise UsageError(f"{fn.name} ({fn.code}) takes {len(fn.args)} argument(s), {fn.name}({sig}); "
+                         f"got {len(args.args)}")
+    try:
+        print(encode_command(fn, *args.args).hex())
     except (KeyError, ValueError) as exc:
         raise UsageError(str(exc).strip('"')) from None
     return 0

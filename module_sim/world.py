@@ -164,11 +164,16 @@ class World:
             if True in (d.get("corrupt") or ()):  # sent garbled (cut by the transmitter's multiplexer)
                 corrupt = [a or b for a, b in zip(corrupt, d["corrupt"])]
             if self.ber:
+                flipped = 0
                 for i in range(len(values)):
                     for bit in range(8):
                         if self._rng.random() < self.ber:
                             values[i] ^= 1 << bit
                             corrupt[i] = True
+                            flipped += 1
+                if flipped:  # errors are data: say where the noise struck
+                    bus.event(WORLD, "bit-error", receiver=dst, transceiver=rx, sender=src, burst=n,
+                              bits=flipped)
             rx_key = bus.keys.ir_rx(dst)
             if fixes:
                 bus.put(rx_key, garble_fixes(dst, src, fixes))

@@ -81,8 +81,9 @@ class PlannerService:
         self.bus.put(self.bus.keys.planner("progress"), PlannerProgress(
             self.bus.clock.now_ns(), step, moves, filled, len(goal), message, done, ok).to_json())
         t = (self.bus.clock.now_ns() - self.bus.clock.started_ns) / NS_PER_S
+        # the last line names the outcome only: the caller prints the run's summary once
         self.say(f"[{t:8.2f} s] step {step:3} moves {moves:3} "
-                 f"goal {filled}/{len(goal)}  {message}")
+                 f"goal {filled}/{len(goal)}  {message.split('; ')[0] if done else message}")
 
     def _state(self, step: int, moves: list[Move]) -> None:
         occ = set(self.view.cells()) if self.view else set()

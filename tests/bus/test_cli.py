@@ -53,3 +53,17 @@ def test_scenarios_bad_file_exits_2(tmp_path, capsys):
     p.write_text("initial = [[0, 0]]\nseed = 'x'\n")
     assert main(["scenarios", str(p)]) == 2
     assert "bad.toml: line 2, key 'seed': expected an integer" in capsys.readouterr().err
+
+
+def test_encode_refuses_missing_or_surplus_arguments(capsys):
+    assert main(["encode", "MCW", "4", "8"]) == 2
+    assert "MCW (21) takes 4 argument(s), MCW(i, t1, t2, t3); got 2" in capsys.readouterr().err
+    assert main(["encode", "LOn", "1"]) == 2
+
+
+def test_a_baud_rate_of_zero_is_refused(capsys):
+    import pytest
+
+    with pytest.raises(SystemExit) as exc:
+        main(["hil", "--port", "loop://", "--baud", "0"])
+    assert exc.value.code == 2 and "0 baud: expected 1..1000000" in capsys.readouterr().err

@@ -85,3 +85,14 @@ def test_a_real_body_follows_its_twin_until_the_board_reports_differ():
         assert mech.bits("m2") == ([True] + [False] * 5, [1] + [0] * 5)
     finally:
         rig.close()
+
+
+def test_ir_bit_errors_are_events():
+    rig = FleetRig("ber", loads('bit_error_rate = 0.01\n[[modules]]\ncell = [0, 0]\nid = 1\n'
+                                '[[modules]]\ncell = [1, 0]\nid = 2\n'))
+    try:
+        rig.boot()
+        errors = [e for e in rig.bus_events if e["kind"] == "bit-error"]
+        assert errors and all(e["bits"] > 0 and e["receiver"] in ("pc", "m1", "m2") for e in errors)
+    finally:
+        rig.close()
