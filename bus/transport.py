@@ -9,9 +9,9 @@ How a sample travels:
   per subscriber, no waiting for deliveries. A virtual clock handles the inbox before time
   moves on, so a run is deterministic.
 * **Across processes and hosts**, every sample is also put on zenoh, for remote
-  subscribers only; samples from elsewhere arrive through one wildcard subscriber per fleet
-  (``hexbot/<fleet>/**``, remote origin only) and reach the same handlers through the inbox.
-  Threads do not grow with the fleet: one per fleet a process takes part in.
+  subscribers only; samples from elsewhere arrive through one wildcard subscriber
+  (``hexbot/**``, remote origin only) and reach the same handlers through the inbox.
+  Threads do not grow with the fleet.
 """
 
 from __future__ import annotations
@@ -78,10 +78,9 @@ class _Hub:
         else:
             self.exact.setdefault(canon, []).append(sub)
         self.cache.clear()
-        head = canon.split("/")
-        # remote samples: one wildcard subscriber per fleet (or per keyexpr outside them)
-        scope = "/".join(head[:2]) + "/**" if len(head) > 2 and head[0] == ROOT and "*" not in head[1] \
-            else canon
+        # samples from elsewhere: one wildcard subscriber for every fleet (or one per key
+        # expression outside them), so the threads zenoh runs do not grow with subscriptions
+        scope = f"{ROOT}/**" if canon.startswith(ROOT + "/") else canon
         if scope not in self.remote:
             self.remote[scope] = self.session.declare_subscriber(
                 scope, self._from_elsewhere, allowed_origin=zenoh.Locality.REMOTE)

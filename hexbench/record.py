@@ -179,9 +179,11 @@ def cmd_replay(args: argparse.Namespace) -> int:
         st = replay(args.file, rrd=args.rrd, spawn=args.spawn, anim_step_ns=int(args.anim_ms * 1e6))
     except FileNotFoundError as exc:
         raise UsageError(str(exc)) from None
+    for d in st.damaged:
+        print(f"warning: {d.describe()}", file=sys.stderr)
     print(f"{st.samples} samples, {st.frames} frames, {st.sim_ns / 1e9:.3f} sim s in {st.wall_s:.2f} s "
           f"({st.speed:.0f}x real time)" + (f" -> {args.rrd}" if args.rrd else ""), file=sys.stderr)
-    return 0
+    return 1 if st.damaged else 0
 
 
 def cmd_bus_replay(args: argparse.Namespace) -> int:

@@ -77,7 +77,9 @@ class PlannerService:
     def _progress(self, step: int, moves: int, message: str, *, done: bool = False,
                   ok: bool = True) -> None:
         goal = set(self.scenario.goal)
-        filled = len(goal & set(self.view.cells())) if self.view else 0
+        # the PC's belief; a script keeps none, so the world's cells where it has one
+        cells = set(self.view.cells()) if self.view else self.truth.cells()
+        filled = len(goal & cells)
         self.bus.put(self.bus.keys.planner("progress"), PlannerProgress(
             self.bus.clock.now_ns(), step, moves, filled, len(goal), message, done, ok).to_json())
         t = (self.bus.clock.now_ns() - self.bus.clock.started_ns) / NS_PER_S

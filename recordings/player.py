@@ -29,6 +29,7 @@ class Player:
         wanted = None if topics is None else list(topics)
         self._samples = sorted((s for rf in files for s in rf.samples(wanted)), key=lambda s: s.log_time_ns)
         self.metadata: dict[str, Any] = run_metadata(files)  # known once the files are scanned
+        self.damaged = [d for rf in files for d in rf.damaged]  # chunks skipped, lost messages
         self.t0_ns = self._origin()
 
     def _origin(self) -> int:

@@ -432,6 +432,7 @@ class ReplayStats:
     rows: int
     sim_ns: int
     wall_s: float
+    damaged: list = field(default_factory=list)  # reader.Damage of chunks that were skipped
 
     @property
     def speed(self) -> float:
@@ -485,4 +486,4 @@ def replay(path: str | Path, *, rrd: str | Path | None = None, spawn: bool = Fal
         import subprocess
         subprocess.Popen([rerun_binary(), str(rrd)], start_new_session=True)
     return ReplayStats(len(player), builder.frames, scene.rows, max(builder.end_ns, player.duration_ns),
-                       time.perf_counter() - t0)
+                       time.perf_counter() - t0, player.damaged)

@@ -100,6 +100,9 @@ RUNS = {
                   {2: ["--no-actuator-reports"]}),
     # only the centre channel bridged (no debug UART): likewise
     "centre": Run("centre", ["scenario.toml", "--planner", "thesis-serial"], {2: []}, debug=False),
+    # the script planner drives a board that sends no reports, as it drives any module
+    "script": Run("script", ["pair", "--planner", f"script:{ROOT}/docs/scripts/pair-rotate-real.txt"],
+                  {2: ["--no-actuator-reports"]}),
 }
 
 
@@ -211,3 +214,13 @@ def test_a_board_with_only_its_centre_channel_bridged(runs):
     assert actuators == {"twin"}
     (ev,) = moved
     assert ev["module"] == "m2" and ev["data"]["to"] == [0, 1]
+
+
+def test_a_script_drives_a_board_without_reports_and_the_world_follows_its_twin(runs):
+    run = runs["script"].wait()
+    assert run.code == 0, run.out
+    assert "script finished; the world is at the goal" in run.out
+    recs = run.records()
+    assert [d["module"] for t, d in recs if t == "world/event" and d["kind"] == "move-completed"] == ["m2"]
+    assert Counter(d["origin"] for t, d in recs if t == "world/actuators/m2")["serial"] == 0
+    assert not run.events("twin-diverged")
