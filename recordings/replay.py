@@ -321,9 +321,12 @@ class ReplayBuilder:
         base = f"world/modules/{tr.name}"
         ir_rows = self.scene.columns(f"{base}/ir", rr.LineStrips2D)
         colour = PALETTE[(int(tr.name[1:]) - 1) % len(PALETTE)] if tr.name[1:].isdigit() else PALETTE[-1]
+        # a real board (its body drawn from its twin's or its own bits) says so in its label
+        real = any(what == "pose" and getattr(value, "kind", "") == "real" for _, _, what, value in events)
+        label = f"{tr.name} real" if real else tr.name
 
         def draw(t: int, p: Placement) -> None:
-            self._draw_module(base, tr.name, colour, t, p, act)
+            self._draw_module(base, label, colour, t, p, act)
 
         pending: list[int] = []
         for t, _, what, value in events:
