@@ -188,14 +188,32 @@ class Bus:
         order = next(hub.order)
         for sub in hub.matches(key):
             sub.clock.post(_deliver, sub, key, payload, order=(order, sub.index))
+        pub = self._publishers.get(key) or self._publisher(key)
+        pub.put(payload)
+        self.published += 1
+
+    def _publisher(self, key: str) -> Any:
         pub = self._publishers.get(key)
         if pub is None:
             # blocking congestion control: a slow peer slows the run down, it loses nothing
             pub = self._publishers[key] = self.session.declare_publisher(
                 key, allowed_destination=zenoh.Locality.REMOTE,
                 congestion_control=zenoh.CongestionControl.BLOCK)
-        pub.put(payload)
-        self.published += 1
+        return pub
+
+    def wait_remote(self, key: str, timeout_s: float = 10.0) -> bool:
+        """Wait until a subscriber in another process matches ``key`` (False after
+        ``timeout_s``). zenoh routes a sample only where a subscription is already known: a
+        participant that joins and publishes at once loses what it puts before then."""
+        import time
+
+        pub = self._publisher(key)
+        deadline = time.monotonic() + timeout_s
+        while not pub.matching_status.matching:
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.01)  # zenoh offers no wait on a matching status from Python
+        return True
 
     def put_json(self, key: str, obj: Any) -> None:
         self.put(key, _dumps(obj).encode())

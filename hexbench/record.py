@@ -86,6 +86,27 @@ def _parse_meta(items: list[str]) -> dict[str, Any]:
     return out
 
 
+#: When told to stop, the recorder keeps taking samples until none came for this long (what
+#: peers had already sent is still on its way), but no longer than QUIET_MAX_S.
+QUIET_S, QUIET_MAX_S = 0.3, 5.0
+
+
+def _take_in_flight(clock, rec) -> None:
+    """Record what was already sent to this process before stopping: nothing captured is lost."""
+    last = [rec.messages, time.monotonic()]
+
+    def quiet() -> bool:
+        if rec.messages != last[0]:
+            last[:] = [rec.messages, time.monotonic()]
+        return time.monotonic() - last[1] >= QUIET_S
+
+    try:
+        clock.run(until=quiet, timeout_s=QUIET_MAX_S)
+    except KeyboardInterrupt:
+        pass
+    clock.drain(timeout_s=1.0)
+
+
 def cmd_record(args: argparse.Namespace) -> int:
     import signal
 
@@ -106,7 +127,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         pass
     finally:
-        clock.drain(timeout_s=1.0)  # samples already received but not yet written
+        _take_in_flight(clock, rec)
         tally = rec.close()
         bus.close()
     links = ", ".join(f"{k} {n}" for k, n in sorted(tally.frames_by_link.items())) or "none"
