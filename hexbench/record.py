@@ -147,8 +147,7 @@ def cmd_info(args: argparse.Namespace) -> int:
         print(json.dumps(s.to_dict(), indent=2, default=str))
         return 1 if s.damaged else 0
     t = s.tally
-    for d in s.damaged:
-        print(f"warning: {d.describe()}", file=sys.stderr)
+    _warn_damaged(s.damaged)
     print(f"file:       {', '.join(str(p) for p in s.paths)}")
     state = "complete" if s.complete else "no footer (recovered)"
     print(f"state:      {state}{'; ' + '; '.join(s.truncated) if s.truncated else ''}")
@@ -171,6 +170,12 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 1 if s.damaged else 0
 
 
+def _warn_damaged(damaged: list) -> None:
+    """One stderr line per chunk a reader skipped (recordings.reader.Damage)."""
+    for d in damaged:
+        print(f"warning: {d.describe()}", file=sys.stderr)
+
+
 def cmd_recover(args: argparse.Namespace) -> int:
     from recordings.recover import recover
 
@@ -180,8 +185,7 @@ def cmd_recover(args: argparse.Namespace) -> int:
         r = recover(args.file, args.out)
     except FileNotFoundError as exc:
         raise UsageError(str(exc)) from None
-    for d in r.damaged:
-        print(f"warning: {d.describe()}", file=sys.stderr)
+    _warn_damaged(r.damaged)
     for t in r.truncated:
         print(f"warning: {t}: the scan ended there; what followed is lost", file=sys.stderr)
     print(f"recovered {r.messages} messages on {r.channels} channels, {r.metadata} metadata "
@@ -200,8 +204,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         st = replay(args.file, rrd=args.rrd, spawn=args.spawn, anim_step_ns=int(args.anim_ms * 1e6))
     except FileNotFoundError as exc:
         raise UsageError(str(exc)) from None
-    for d in st.damaged:
-        print(f"warning: {d.describe()}", file=sys.stderr)
+    _warn_damaged(st.damaged)
     print(f"{st.samples} samples, {st.frames} frames, {st.sim_ns / 1e9:.3f} sim s in {st.wall_s:.2f} s "
           f"({st.speed:.0f}x real time)" + (f" -> {args.rrd}" if args.rrd else ""), file=sys.stderr)
     return 1 if st.damaged else 0

@@ -78,15 +78,21 @@ class ControlBoard(Mcu):
             self._report_due = True  # one report for all the bits a step changes at once
             self.clock.call_later(0, self._report)
 
-    def _report(self) -> None:
-        self._report_due = False
-        bits = [bool(self.port[JOINT[j].port] & JOINT[j].mask) for j in range(1, 7)]
+    def actuator_bits(self) -> tuple[list[bool], list[int]]:
+        """Solenoids J1..J6 (True = energised) and magnets S1..S6 as in
+        :class:`bus.messages.Actuators` (+1, -1, 0, or 2 for both relays), from the ports."""
+        port = self.port
+        joints = [bool(port[JOINT[j].port] & JOINT[j].mask) for j in range(1, 7)]
         magnets = []
         for s in range(1, 7):
-            pos = bool(self.port[MAGNET_POS[s].port] & MAGNET_POS[s].mask)
-            neg = bool(self.port[MAGNET_NEG[s].port] & MAGNET_NEG[s].mask)
+            pos = bool(port[MAGNET_POS[s].port] & MAGNET_POS[s].mask)
+            neg = bool(port[MAGNET_NEG[s].port] & MAGNET_NEG[s].mask)
             magnets.append(2 if pos and neg else 1 if pos else -1 if neg else 0)
-        line = codec.encode_actuator_report(bits, magnets)
+        return joints, magnets
+
+    def _report(self) -> None:
+        self._report_due = False
+        line = codec.encode_actuator_report(*self.actuator_bits())
         if line != self._reported:
             self._reported = line
             self.uart1.write(line, self.clock.now_ns())

@@ -15,7 +15,7 @@ from bus.framer import Framer
 from bus.ir import Burst, IrReceiver, IrTransmitter, cut_masks
 from bus.keys import board_endpoint, module_endpoint
 from bus.messages import Actuators
-from bus.pins import JOINT, LED_JOINT, LED_NEG, LED_POS, MAGNET_NEG, MAGNET_POS
+from bus.pins import LED_JOINT, LED_NEG, LED_POS
 from bus.transport import Bus
 
 from .avr import Mcu, Uart
@@ -197,13 +197,10 @@ class VirtualModule:
         def bit(ports: dict[str, int], pin) -> bool:
             return bool(ports[pin.port] & pin.mask)
 
-        magnets = []
-        for s in range(1, 7):
-            pos, neg = bit(c, MAGNET_POS[s]), bit(c, MAGNET_NEG[s])
-            magnets.append(2 if pos and neg else 1 if pos else -1 if neg else 0)
+        joints, magnets = self.ctrl.actuator_bits()
         return Actuators(
             module=self.name, sim_time_ns=self.bus.clock.now_ns(),
-            joints_open=[bit(c, JOINT[j]) for j in range(1, 7)], magnets=magnets,
+            joints_open=joints, magnets=magnets,
             led_pos=[not bit(m, LED_POS[s]) for s in range(1, 7)],
             led_neg=[not bit(m, LED_NEG[s]) for s in range(1, 7)],
             led_joint=[not bit(m, LED_JOINT[j]) for j in range(1, 7)],

@@ -72,8 +72,9 @@ def _channel(writer: Writer, rf: RecordingFile, topic: str,
     schema = rf.schemas.get(ch.schema_id)
     if schema is not None:
         key = (schema.name, schema.encoding, bytes(schema.data))
-        sid = schemas.get(key, 0) or schemas.setdefault(
-            key, writer.register_schema(schema.name, schema.encoding, bytes(schema.data)))
+        if key not in schemas:
+            schemas[key] = writer.register_schema(schema.name, schema.encoding, bytes(schema.data))
+        sid = schemas[key]
     key2 = (topic, ch.message_encoding, sid)
     if key2 not in channels:
         channels[key2] = writer.register_channel(topic, ch.message_encoding, sid, dict(ch.metadata))

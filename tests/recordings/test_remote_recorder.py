@@ -18,14 +18,19 @@ def _frames(path) -> list[tuple]:
     return [(e.link, e.src, e.seq, e.sim_time_ns, e.raw) for e in read_frames(path)]
 
 
+def _remote_recorder(port: int, fleet: str, out) -> subprocess.Popen:
+    """``hexbench record`` in its own process, listening on loopback for the fleet."""
+    return subprocess.Popen([sys.executable, "-m", "hexbench", "record", "--listen",
+                             f"tcp/127.0.0.1:{port}", "--fleet", fleet, "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+
+
 def test_a_recorder_in_another_process_gets_every_sample(tmp_path, capsys):
     port = 18000 + os.getpid() % 1000
     fleet = f"remote{os.getpid()}"
     remote = tmp_path / "remote.mcap"
-    rec = subprocess.Popen([sys.executable, "-m", "hexbench", "record", "--listen",
-                            f"tcp/127.0.0.1:{port}", "--fleet", fleet, "--out", str(remote)],
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                           env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    rec = _remote_recorder(port, fleet, remote)
     try:
         assert rec.stdout.readline().startswith("recording "), rec.stderr.read()
         local = tmp_path / "local.mcap"
@@ -55,10 +60,7 @@ def test_a_burst_of_50_000_frames_reaches_a_remote_recorder_whole(tmp_path):
     port = 18500 + os.getpid() % 400
     fleet = f"burst{os.getpid()}"
     remote = tmp_path / "burst.mcap"
-    rec = subprocess.Popen([sys.executable, "-m", "hexbench", "record", "--listen",
-                            f"tcp/127.0.0.1:{port}", "--fleet", fleet, "--out", str(remote)],
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                           env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    rec = _remote_recorder(port, fleet, remote)
     n = 50_000
     bus = Bus(WallClock(), fleet, options=SessionOptions(connect=[f"tcp/127.0.0.1:{port}"]))
     try:
