@@ -56,6 +56,11 @@ LED_JOINT = _pins("PD7", "PA7", "PE2", "PC5", "PC2", "PD4")
 IR_SEL_A, IR_SEL_B, IR_SEL_C = Pin.parse("PA2"), Pin.parse("PA1"), Pin.parse("PA0")
 IR_SEL_MASK = IR_SEL_A.mask | IR_SEL_B.mask | IR_SEL_C.mask
 
+#: Optical switches (inputs, active high): a neighbour touches body side 1..6. The thesis
+#: names no pins for them (§4.3.4 only says they exist); these are free pins of the comm
+#: board, our choice for the v2 firmware (docs/firmware.md).
+OPTICAL_SWITCH = _pins("PB0", "PB1", "PB4", "PB5", "PB6", "PB7")
+
 #: Transceiver number (0 = centre, 1..6 = body side) on each CD4051 channel Y0..Y6.
 IR_CHANNEL_TRANSCEIVER = (1, 6, 0, 2, 5, 3, 4)
 #: Inverse: transceiver -> CD4051 channel (what ``IrSel(i)`` selects).

@@ -1,0 +1,138 @@
+/* The board layer on the ATmega162 at 1 MHz: ports A..E, USART0 and USART1 (8N1, polled
+ * like the thesis's ReceiveByte/TransmitByte, so a byte the program does not read waits in
+ * the two-byte FIFO and the third overruns exactly as on the chip), a background transmit
+ * queue emptied by the UDRE interrupt, and the 10 ms Timer0 tick. */
+#include <avr/interrupt.h>
+#include <avr/io.h>
+#include <util/atomic.h>
+
+#include "hexbot.h"
+
+#if F_CPU != HEXBOT_F_CPU
+#error "F_CPU must match bus/ (hexbot_gen.h)"
+#endif
+
+static volatile uint16_t ticks;
+
+ISR(TIMER0_OVF_vect)
+{
+    TCNT0 = TIMER0_RELOAD;
+    ticks++;
+}
+
+/* --- background transmit queue (the v2 actuator reports) --- */
+#define QUEUE 32
+static volatile uint8_t queue[2][QUEUE], head[2], tail[2];
+
+static void udre_enable(uint8_t uart, uint8_t on)
+{
+    if (uart == UART0)
+        UCSR0B = on ? (UCSR0B | _BV(UDRIE0)) : (UCSR0B & ~_BV(UDRIE0));
+    else
+        UCSR1B = on ? (UCSR1B | _BV(UDRIE1)) : (UCSR1B & ~_BV(UDRIE1));
+}
+
+static void drain(uint8_t uart)
+{
+    if (head[uart] == tail[uart]) {
+        udre_enable(uart, 0);
+        return;
+    }
+    uint8_t b = queue[uart][tail[uart]];
+    tail[uart] = (uint8_t)((tail[uart] + 1) % QUEUE);
+    if (uart == UART0)
+        UDR0 = b;
+    else
+        UDR1 = b;
+}
+
+ISR(USART0_UDRE_vect) { drain(UART0); }
+ISR(USART1_UDRE_vect) { drain(UART1); }
+
+uint8_t board_tx_queue(uint8_t uart, const uint8_t *data, uint8_t n)
+{
+    uint8_t ok = 1;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+        uint8_t used = (uint8_t)((head[uart] - tail[uart] + QUEUE) % QUEUE);
+        if (used + n >= QUEUE) {
+            ok = 0;
+        } else {
+            for (uint8_t k = 0; k < n; k++) {
+                queue[uart][head[uart]] = data[k];
+                head[uart] = (uint8_t)((head[uart] + 1) % QUEUE);
+            }
+            udre_enable(uart, 1);
+        }
+    }
+    return ok;
+}
+
+/* --- ports --- */
+static volatile uint8_t *const PORT[5] = {&PORTA, &PORTB, &PORTC, &PORTD, &PORTE};
+static volatile uint8_t *const DDR[5] = {&DDRA, &DDRB, &DDRC, &DDRD, &DDRE};
+static volatile uint8_t *const PIN[5] = {&PINA, &PINB, &PINC, &PIND, &PINE};
+
+uint8_t board_port(uint8_t port) { return *PORT[port]; }
+void board_port_write(uint8_t port, uint8_t value) { *PORT[port] = value; }
+uint8_t board_pins(uint8_t port) { return *PIN[port]; }
+
+uint16_t board_ticks(void)
+{
+    uint16_t t;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { t = ticks; }
+    return t;
+}
+
+/* --- UARTs --- */
+uint8_t board_rx_ready(uint8_t uart)
+{
+    return uart == UART0 ? (UCSR0A & _BV(RXC0)) != 0 : (UCSR1A & _BV(RXC1)) != 0;
+}
+
+uint8_t board_rx_read(uint8_t uart) { return uart == UART0 ? UDR0 : UDR1; }
+
+uint8_t board_tx_ready(uint8_t uart)
+{
+    if (head[uart] != tail[uart])
+        return 0; /* the program's bytes go after what is queued */
+    return uart == UART0 ? (UCSR0A & _BV(UDRE0)) != 0 : (UCSR1A & _BV(UDRE1)) != 0;
+}
+
+void board_tx_write(uint8_t uart, uint8_t byte)
+{
+    if (uart == UART0)
+        UDR0 = byte;
+    else
+        UDR1 = byte;
+}
+
+void board_init(const uint8_t outputs[5])
+{
+    for (uint8_t p = 0; p < 5; p++)
+        *DDR[p] = outputs[p];
+    /* 8N1; UBRRH and UCSRC share an address on this part: URSEL picks UCSRC */
+    UBRR0H = 0;
+    UBRR0L = UART0_UBRR;
+    UCSR0C = _BV(URSEL0) | _BV(UCSZ01) | _BV(UCSZ00);
+    UCSR0B = _BV(RXEN0) | _BV(TXEN0);
+    UBRR1H = 0;
+#if defined(HEXBOT_COMM)
+    UBRR1L = IR_UBRR; /* the comm board's UART1 is the IR link */
+#else
+    UBRR1L = DEBUG_UBRR; /* the control board's UART1 is the debug terminal */
+#endif
+    UCSR1C = _BV(URSEL1) | _BV(UCSZ11) | _BV(UCSZ10);
+    UCSR1B = _BV(RXEN1) | _BV(TXEN1);
+    /* Timer0: prescaler 64, reloaded so it overflows every 156 counts = 9.984 ms */
+    TCNT0 = TIMER0_RELOAD;
+    TCCR0 = _BV(CS01) | _BV(CS00);
+    TIMSK |= _BV(TOIE0);
+    sei();
+}
+
+int main(void)
+{
+    board_init(program_outputs);
+    for (;;)
+        program_step();
+}

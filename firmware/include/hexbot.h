@@ -1,0 +1,113 @@
+/* HexBot firmware: what both programs share.
+ *
+ * A program is a step function, Kilombo's way: the board layer calls program_step()
+ * again and again (on the ATmega162 from its main loop, on the host whenever an event
+ * happened), and the program runs until it has to wait for a byte, a free transmitter
+ * or a tick, then returns. The waits are written as coroutines (a switch on a saved
+ * line number, as in protothreads), so the program reads like the thesis's sequential
+ * code while never blocking the caller.
+ *
+ * Rules for a coroutine body: all state that lives across a wait is static; at most one
+ * PT_ macro per source line; no `switch` in a coroutine body (put it in a helper). */
+#ifndef HEXBOT_H
+#define HEXBOT_H
+
+#include <stdint.h>
+
+#include "hexbot_gen.h"
+
+#ifndef HEXBOT_V2
+#define HEXBOT_V2 1 /* protocol v2; 0 = the thesis-2009 firmware's observable behaviour */
+#endif
+
+/* --- constants in flash on the ATmega162, plain data on the host --- */
+#ifdef __AVR__
+#include <avr/pgmspace.h>
+#define FW_CONST PROGMEM
+#define fw_byte(p) pgm_read_byte(p)
+#else
+#define FW_CONST
+#define fw_byte(p) (*(const uint8_t *)(p))
+#endif
+#define fw_sbyte(p) ((int8_t)fw_byte(p))
+
+/* --- the board layer (board_avr.c on the chip; the host's own elsewhere) --- */
+enum { PORT_A, PORT_B, PORT_C, PORT_D, PORT_E };
+enum { UART0, UART1 };
+
+void board_init(const uint8_t outputs[5]);
+uint16_t board_ticks(void);                  /* Timer0 overflows since power-up */
+uint8_t board_rx_ready(uint8_t uart);        /* RXC: a received byte is waiting */
+uint8_t board_rx_read(uint8_t uart);
+uint8_t board_tx_ready(uint8_t uart);        /* UDRE, and nothing queued in the background */
+void board_tx_write(uint8_t uart, uint8_t byte);
+/* Send in the background (UDRE interrupt); 0 if the queue is full. */
+uint8_t board_tx_queue(uint8_t uart, const uint8_t *data, uint8_t n);
+uint8_t board_port(uint8_t port);            /* PORTx as last written */
+void board_port_write(uint8_t port, uint8_t value);
+uint8_t board_pins(uint8_t port);            /* PINx: levels on the pins */
+
+/* --- each program provides --- */
+extern const uint8_t program_outputs[5];     /* DDR: which pins are outputs */
+void program_step(void);
+
+/* --- coroutines --- */
+typedef struct {
+    uint16_t lc; /* where to resume: a source line, 0 = start */
+    uint16_t t0; /* tick a wait started, or the tick it waits for */
+    uint16_t n;  /* ticks of that wait */
+    uint8_t k;   /* byte index of a transmission */
+} pt_t;
+
+enum { PT_WAITING = 0, PT_DONE = 1 };
+
+#define PT_BEGIN(pt) switch ((pt)->lc) { case 0:
+#define PT_END(pt) } (pt)->lc = 0; return PT_DONE
+#define PT_EXIT(pt) do { (pt)->lc = 0; return PT_DONE; } while (0)
+#define PT_WAIT_UNTIL(pt, cond) \
+    do { (pt)->lc = __LINE__; case __LINE__: if (!(cond)) return PT_WAITING; } while (0)
+/* Run a child coroutine (a call that returns PT_DONE when it has finished). */
+#define PT_CALL(pt, call) PT_WAIT_UNTIL(pt, (call) == PT_DONE)
+
+/* DelayXts(n): resume on the n-th Timer0 overflow after now. */
+#define DELAY(pt, ticks) \
+    do { (pt)->t0 = board_ticks(); (pt)->n = (ticks); \
+         PT_WAIT_UNTIL(pt, (uint16_t)(board_ticks() - (pt)->t0) >= (pt)->n); } while (0)
+/* Wait for the overflow that makes board_ticks() == target (at once if it has passed). */
+#define WAIT_TICK(pt, target) \
+    do { (pt)->t0 = (target); PT_WAIT_UNTIL(pt, (int16_t)(board_ticks() - (pt)->t0) >= 0); } while (0)
+/* ReceiveByte */
+#define RX(pt, uart, dst) \
+    do { PT_WAIT_UNTIL(pt, board_rx_ready(uart)); (dst) = board_rx_read(uart); } while (0)
+/* ReceiveByteTL(n): the byte, or ACK_TIMEOUT ('~') on the n-th overflow. */
+#define RX_TL(pt, uart, ticks, dst) \
+    do { (pt)->t0 = board_ticks(); (pt)->n = (ticks); \
+         PT_WAIT_UNTIL(pt, board_rx_ready(uart) || (uint16_t)(board_ticks() - (pt)->t0) >= (pt)->n); \
+         (dst) = board_rx_ready(uart) ? board_rx_read(uart) : ACK_TIMEOUT; } while (0)
+/* TransmitByte for each byte of a RAM buffer: done when the last one is in UDR. */
+#define TX(pt, uart, data, len) \
+    do { for ((pt)->k = 0; (pt)->k < (len); (pt)->k++) { \
+         PT_WAIT_UNTIL(pt, board_tx_ready(uart)); board_tx_write(uart, (data)[(pt)->k]); } } while (0)
+/* The same for a FW_CONST string. */
+#define TX_P(pt, uart, str) \
+    do { for ((pt)->k = 0; (pt)->k < sizeof(str) - 1; (pt)->k++) { \
+         PT_WAIT_UNTIL(pt, board_tx_ready(uart)); board_tx_write(uart, fw_byte(&(str)[(pt)->k])); } } while (0)
+
+/* --- shared helpers (common.c) --- */
+enum { BOARD_NONE = 0, BOARD_CONTROL = 1, BOARD_COMM = 2 };
+
+uint8_t fold(int16_t i);                     /* the firmware's wrap of a side/joint into 1..6 */
+uint8_t fn_board(uint8_t code);              /* BOARD_* of a code (Table 3-7) */
+uint8_t fn_nargs(uint8_t code);
+uint8_t fn_is_v2(uint8_t code);
+uint8_t fn_mirror(uint8_t code, uint8_t k);  /* k-th LED mirror of a control code, or 0 */
+void port_change(uint8_t port, uint8_t mask, uint8_t set);
+
+/* One rotation (bus/rotations.py) through a board's own actions. */
+enum { ROT_OPEN = 1, ROT_POS, ROT_NEG, ROT_CLOSE_ALL, ROT_OFF_ALL, ROT_WAIT };
+typedef void (*rotation_action)(uint8_t op, int16_t index);
+const int8_t *rotation_steps(uint8_t code); /* code 21..24 or 56..59 */
+uint8_t co_rotation(pt_t *pt, const int8_t *steps, uint8_t i, const uint8_t t[3],
+                    rotation_action act);
+
+#endif

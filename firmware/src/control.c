@@ -1,0 +1,216 @@
+/* The control board: joint solenoids and side magnets (Table 3-3), the comm board on
+ * UART0, a PC terminal on UART1 (the debug link). Behaviour: spec sections 5 and 6,
+ * module_sim/control_board.py is the reference model. */
+#include "hexbot.h"
+
+const uint8_t program_outputs[5] = {CONTROL_OUTPUTS_A, CONTROL_OUTPUTS_B, CONTROL_OUTPUTS_C,
+                                    CONTROL_OUTPUTS_D, CONTROL_OUTPUTS_E};
+
+static const uint8_t JOINT_PORT[7] FW_CONST = JOINT_PORTS;
+static const uint8_t JOINT_MASK[7] FW_CONST = JOINT_MASKS;
+static const uint8_t POS_PORT[7] FW_CONST = MAGNET_POS_PORTS;
+static const uint8_t POS_MASK[7] FW_CONST = MAGNET_POS_MASKS;
+static const uint8_t NEG_PORT[7] FW_CONST = MAGNET_NEG_PORTS;
+static const uint8_t NEG_MASK[7] FW_CONST = MAGNET_NEG_MASKS;
+static const uint8_t ACTUATOR_BITS[5] = {CONTROL_OUTPUTS_A, CONTROL_OUTPUTS_B, CONTROL_OUTPUTS_C,
+                                         CONTROL_OUTPUTS_D, CONTROL_OUTPUTS_E};
+static const uint8_t UART_PINS[5] = {CONTROL_UART_PINS_A, CONTROL_UART_PINS_B, CONTROL_UART_PINS_C,
+                                     CONTROL_UART_PINS_D, CONTROL_UART_PINS_E};
+
+static const char S_PREAMBLE[] FW_CONST = TXT_PREAMBLE;
+static const char S_CTR_READY[] FW_CONST = TXT_CTR_READY;
+static const char S_COMM_READY[] FW_CONST = TXT_COMM_READY;
+static const char S_CTR_LST[] FW_CONST = TXT_CTR_LST;
+
+/* v2 actuator reports (docs/protocol.md): once the board listens, every step that changes
+ * a solenoid or relay sends one ACT line in the background. */
+static uint8_t reporting, report_due, reported[3], have_reported;
+
+static void write_port(uint8_t port, uint8_t value)
+{
+    if ((board_port(port) ^ value) & ACTUATOR_BITS[port] && reporting)
+        report_due = 1;
+    board_port_write(port, value);
+}
+
+static void pin(const uint8_t *ports, const uint8_t *masks, int16_t i, uint8_t on)
+{
+    uint8_t k = fold(i);
+    uint8_t port = fw_byte(&ports[k]), mask = fw_byte(&masks[k]);
+    uint8_t v = board_port(port);
+    write_port(port, on ? (uint8_t)(v | mask) : (uint8_t)(v & ~mask));
+}
+
+static void JxOpen(int16_t i) { pin(JOINT_PORT, JOINT_MASK, i, 1); }
+static void JxClose(int16_t i) { pin(JOINT_PORT, JOINT_MASK, i, 0); }
+static void SxP(int16_t i) { pin(POS_PORT, POS_MASK, i, 1); }
+static void SxN(int16_t i) { pin(NEG_PORT, NEG_MASK, i, 1); }
+
+static void SxOff(int16_t i)
+{
+    pin(POS_PORT, POS_MASK, i, 0);
+    pin(NEG_PORT, NEG_MASK, i, 0);
+}
+
+static void JxAll(uint8_t on)
+{
+    for (uint8_t k = 1; k <= 6; k++)
+        pin(JOINT_PORT, JOINT_MASK, k, on);
+}
+
+static void SxOffAll(void)
+{
+    /* PORTB and PORTD hold every relay; keep only the UART pins */
+    write_port(PORT_B, board_port(PORT_B) & UART_PINS[PORT_B]);
+    write_port(PORT_D, board_port(PORT_D) & UART_PINS[PORT_D]);
+}
+
+static void TurnOffAll(void)
+{
+    SxOffAll();
+    JxAll(0);
+}
+
+static void rotation_act(uint8_t op, int16_t i)
+{
+    switch (op) {
+    case ROT_OPEN: JxOpen(i); break;
+    case ROT_POS: SxP(i); break;
+    case ROT_NEG: SxN(i); break;
+    case ROT_CLOSE_ALL: JxAll(0); break;
+    default: SxOffAll(); break;
+    }
+}
+
+/* JTest, SPTest, SNTest: n rounds, each of the six on for t ticks, off for t ticks. */
+static pt_t pt_test;
+static uint8_t test_round, test_k;
+
+static uint8_t co_test(uint8_t code, uint8_t n, uint8_t t)
+{
+    pt_t *pt = &pt_test;
+    PT_BEGIN(pt);
+    for (test_round = 0; test_round < n; test_round++) {
+        for (test_k = 1; test_k <= 6; test_k++) {
+            if (code == FC_JTest)
+                JxOpen(test_k);
+            else if (code == FC_SPTest)
+                SxP(test_k);
+            else
+                SxN(test_k);
+            DELAY(pt, t);
+            if (code == FC_JTest)
+                JxClose(test_k);
+            else
+                SxOff(test_k);
+            DELAY(pt, t);
+        }
+    }
+    PT_END(pt);
+}
+
+static pt_t pt_rotation;
+
+/* Run code with its arguments; PT_DONE when finished (at once for the instant ones). */
+static uint8_t execute(uint8_t code, const uint8_t *a)
+{
+    switch (code) {
+    case FC_JxOpen: JxOpen(a[0]); return PT_DONE;
+    case FC_JxClose: JxClose(a[0]); return PT_DONE;
+    case FC_JxOpenAll: JxAll(1); return PT_DONE;
+    case FC_JxCloseAll: JxAll(0); return PT_DONE;
+    case FC_SxP: SxP(a[0]); return PT_DONE;
+    case FC_SxN: SxN(a[0]); return PT_DONE;
+    case FC_SxOff: SxOff(a[0]); return PT_DONE;
+    case FC_SxOffAll: SxOffAll(); return PT_DONE;
+    case FC_TurnOffAll: TurnOffAll(); return PT_DONE;
+    case FC_JTest: case FC_SPTest: case FC_SNTest: return co_test(code, a[0], a[1]);
+    case FC_MCW: case FC_MCCW: case FC_SCW: case FC_SCCW:
+        return co_rotation(&pt_rotation, rotation_steps(code), a[0], &a[1], rotation_act);
+    default: return PT_DONE; /* the thesis's if-chain matches nothing */
+    }
+}
+
+static pt_t pt_main;
+static uint8_t byte, msg[5], k;
+static uint8_t line[10]; /* "ACK" c EOL, or "MSG" 5 bytes EOL */
+
+static uint8_t co_main(void)
+{
+    pt_t *pt = &pt_main;
+    PT_BEGIN(pt);
+    DELAY(pt, BOOT_SETTLE_TICKS); /* let the supplies settle */
+    TurnOffAll();
+    PT_CALL(pt, co_test(FC_JTest, 1, 5)); /* the joints click once: "ready" */
+    TX_P(pt, UART1, S_PREAMBLE);
+    TX_P(pt, UART1, S_CTR_READY);
+    byte = BYTE_READY;
+    TX(pt, UART0, &byte, 1);
+    for (;;) {
+        RX_TL(pt, UART0, HANDSHAKE_RETRY_TICKS, byte);
+        if (byte == BYTE_READY)
+            break;
+        byte = BYTE_READY;
+        TX(pt, UART0, &byte, 1);
+    }
+    TX_P(pt, UART1, S_COMM_READY);
+    byte = BYTE_LISTENING;
+    TX(pt, UART0, &byte, 1);
+#if HEXBOT_V2
+    byte = board_pins(DIP_PORT); /* the DIP switches are the module's id */
+    TX(pt, UART0, &byte, 1);
+    reporting = 1;
+#endif
+    TX_P(pt, UART1, S_CTR_LST);
+    for (;;) {
+        /* Listen(): '*' then five bytes: code a b c d */
+        do {
+            RX(pt, UART0, byte);
+        } while (byte != BYTE_START);
+        for (k = 0; k < 5; k++) {
+            RX(pt, UART0, msg[k]);
+        }
+        TX(pt, UART0, msg, 1); /* confirm to the comm board: echo the code */
+        TX_P(pt, UART1, S_PREAMBLE);
+        line[0] = TXT_ACK[0], line[1] = TXT_ACK[1], line[2] = TXT_ACK[2], line[3] = msg[0];
+        line[4] = TXT_EOL[0], line[5] = TXT_EOL[1];
+        TX(pt, UART1, line, 6);
+        line[0] = TXT_MSG[0], line[1] = TXT_MSG[1], line[2] = TXT_MSG[2];
+        for (k = 0; k < 5; k++)
+            line[3 + k] = msg[k];
+        line[8] = TXT_EOL[0], line[9] = TXT_EOL[1];
+        TX(pt, UART1, line, 10);
+        PT_CALL(pt, execute(msg[0], &msg[1]));
+    }
+    PT_END(pt);
+}
+
+static void report(void)
+{
+    uint8_t bits[3] = {0, 0, 0};
+    for (uint8_t s = 1; s <= 6; s++) {
+        uint8_t b = (uint8_t)(1u << (s - 1));
+        if (board_port(fw_byte(&JOINT_PORT[s])) & fw_byte(&JOINT_MASK[s]))
+            bits[0] |= b;
+        if (board_port(fw_byte(&POS_PORT[s])) & fw_byte(&POS_MASK[s]))
+            bits[1] |= b;
+        if (board_port(fw_byte(&NEG_PORT[s])) & fw_byte(&NEG_MASK[s]))
+            bits[2] |= b;
+    }
+    if (have_reported && bits[0] == reported[0] && bits[1] == reported[1] && bits[2] == reported[2])
+        return;
+    uint8_t out[8] = {TXT_ACT[0], TXT_ACT[1], TXT_ACT[2], bits[0], bits[1], bits[2], TXT_EOL[0], TXT_EOL[1]};
+    if (board_tx_queue(UART1, out, sizeof out)) {
+        have_reported = 1;
+        reported[0] = bits[0], reported[1] = bits[1], reported[2] = bits[2];
+    }
+}
+
+void program_step(void)
+{
+    co_main();
+    if (report_due) { /* one report for every bit a step changed */
+        report_due = 0;
+        report();
+    }
+}
