@@ -4,7 +4,14 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench clean
+SYSTEM := $(VENV)/.system
+
+.PHONY: demo test bench firmware clean
+
+# Debian packages (AVR toolchain, simavr, socat, openssl): installed when missing (root).
+$(SYSTEM): .ci/system
+	./.ci/system
+	mkdir -p $(VENV) && touch $(SYSTEM)
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -15,7 +22,10 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(VENV)/bin/hexbench demo
 
-test: $(STAMP)
+firmware: $(SYSTEM) $(STAMP)
+	$(MAKE) -C firmware PYTHON=$(abspath $(PY))
+
+test: $(SYSTEM) $(STAMP) firmware
 	$(VENV)/bin/lint-imports --no-logo
 	$(PY) -m pytest -q tests hexbench/conformance --ignore=tests/benchmarks
 
@@ -24,3 +34,4 @@ bench: $(STAMP)
 
 clean:
 	rm -rf $(VENV) build *.egg-info
+	$(MAKE) -C firmware clean

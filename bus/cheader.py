@@ -119,6 +119,10 @@ def header() -> str:
                                         pins.IR_SEL_C])
     out.append(f"#define IR_SEL_PORT {pins.PORTS.index(pins.IR_SEL_A.port)}")
     out.append(f"#define IR_SEL_MASK 0x{pins.IR_SEL_MASK:02x}")
+    out.append("/* CD4051 channel = A + 2B + 4C: the PORTA bit numbers of A, B, C */")
+    out += [f"#define IR_SEL_{n}_BIT {p.bit}" for n, p in (("A", pins.IR_SEL_A), ("B", pins.IR_SEL_B),
+                                                           ("C", pins.IR_SEL_C))]
+    out.append(f"#define IR_CENTRE_CHANNEL {pins.IR_TRANSCEIVER_CHANNEL[pins.CENTRE]}")
     out.append("/* PORTA bits IrSel(transceiver) leaves set, transceiver 0 (centre) .. 6 */")
     out.append("#define IR_SEL_BITS {" + ", ".join(f"0x{pins.ir_select_bits(t):02x}" for t in range(7)) + "}")
     out += ["", "/* --- wire texts (bus/codec.py) --- */",

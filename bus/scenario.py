@@ -21,7 +21,9 @@ from .faults import ActuatorFault, FaultSpecError
 from .lattice import Cell, matrix_to_cells
 
 PROFILES = ("v2", "thesis-2009")
-KINDS = ("virtual", "real")
+#: virtual: the Python model in the fleet; real: a board behind serial ports; firmware: the
+#: C firmware in simavr behind ptys (hil.firmware), bridged like a real board.
+KINDS = ("virtual", "real", "firmware")
 _TOP_KEYS = {"name", "description", "profile", "seed", "fixed", "goal", "goal_matrix", "initial",
              "initial_matrix", "obstacles", "modules", "ir_baud", "bit_error_rate", "faults"}
 _MODULE_KEYS = {"cell", "id", "kind", "orientation", "port", "debug_port"}
@@ -197,7 +199,7 @@ def _build(d: dict[str, Any], source: str, text: str) -> Scenario:
                 raise _err(source, text, f"{key}.id", "a hardware id 1..255 (the DIP switches)", ident)
             kind = m.get("kind", "virtual")
             if kind not in KINDS:
-                raise _err(source, text, f"{key}.kind", "'virtual' or 'real'", kind)
+                raise _err(source, text, f"{key}.kind", "'virtual', 'real' or 'firmware'", kind)
             orient = m.get("orientation", 0)
             if not isinstance(orient, int) or isinstance(orient, bool) or not 0 <= orient <= 5:
                 raise _err(source, text, f"{key}.orientation", "an integer 0..5 (60-degree steps)", orient)
@@ -303,10 +305,11 @@ def parse_real(spec: str) -> tuple[int, str, str | None]:
 
 
 def override(sc: Scenario, *, seed: int | None = None, profile: str | None = None,
-             faults: list[str] = (), real: list[str] = ()) -> Scenario:
+             faults: list[str] = (), real: list[str] = (), firmware: list[str] = ()) -> Scenario:
     """A copy of ``sc`` with command-line overrides; extra fault specs are checked against
     the fleet, and ``real`` specs (:func:`parse_real`) make modules real boards on ports
-    (:class:`ScenarioError` names the bad one)."""
+    (:class:`ScenarioError` names the bad one); ``firmware`` ids (``3`` or ``m3``) make
+    modules run the C firmware in simavr."""
     import dataclasses
 
     ids = {f"m{m.id}" for m in sc.modules}
@@ -316,8 +319,17 @@ def override(sc: Scenario, *, seed: int | None = None, profile: str | None = Non
         if f"m{ident}" not in ids:
             raise ScenarioError(f"--real {spec}: scenario {sc.name!r} has no module m{ident}")
         boards[ident] = (port, debug)
+    fw = set()
+    for spec in firmware:
+        text = str(spec).strip().lstrip("m")
+        if not text.isdigit() or f"m{int(text)}" not in ids:
+            raise ScenarioError(f"--firmware {spec}: scenario {sc.name!r} has no module m{text}")
+        if int(text) in boards:
+            raise ScenarioError(f"--firmware {spec}: m{text} is already a real board (--real)")
+        fw.add(int(text))
     modules = [dataclasses.replace(m, kind="real", port=boards[m.id][0], debug_port=boards[m.id][1])
-               if m.id in boards else m for m in sc.modules]
+               if m.id in boards else dataclasses.replace(m, kind="firmware") if m.id in fw else m
+               for m in sc.modules]
     extra = []
     for spec in faults:
         try:

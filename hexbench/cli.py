@@ -12,10 +12,10 @@ from typing import Sequence
 
 from bus.errors import HexbenchError, UsageError
 
-from . import fleet, hil, plan, record, tools
+from . import firmware, fleet, hil, plan, record, tools
 
 #: Modules whose ``register`` adds subcommands, in help order.
-COMMANDS = (tools, fleet, plan, record, hil)
+COMMANDS = (tools, fleet, plan, record, hil, firmware)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -7,7 +7,11 @@ Options:
   pyserial URL: ``/dev/ttyUSB0``, ``socket://host:port``, a pty of ``hexbench standin``), reached
   through a :class:`hil.bridge.CentreBridge` on a private bus with the wall clock. Give the
   board's firmware with ``--hexbench-profile v2`` or ``thesis-2009``.
-* ``--hexbench-profile v2|thesis-2009|both`` (default both, virtual targets only).
+* ``--hexbench-target simavr``: the C firmware of ``firmware/`` in simavr (our ATmega162
+  core), one fresh module per test, reached like a serial target through its IR pty
+  (:class:`hil.firmware.FirmwareModule`); the module powers up when the test starts, so the
+  boot banners are observable. Builds the firmware first if needed (avr-gcc, libsimavr).
+* ``--hexbench-profile v2|thesis-2009|both`` (default both; a serial target needs one).
 * ``--hexbench-baud N``: IR baud rate of the target (default 300).
 
 Fixtures, all named ``hexbench_*`` so that they cannot shadow a user's own: ``hexbench_bench``
@@ -40,7 +44,8 @@ _fleets = itertools.count()
 def pytest_addoption(parser) -> None:
     group = parser.getgroup("hexbench")
     group.addoption("--hexbench-target", default="virtual",
-                    help="what the conformance suite talks to: 'virtual' (default) or 'serial:<url>'")
+                    help="what the conformance suite talks to: 'virtual' (default), 'simavr' "
+                         "(the C firmware in simavr) or 'serial:<url>'")
     group.addoption("--hexbench-profile", default="both", choices=["v2", "thesis-2009", "both"],
                     help="firmware profile of the target (default: both, for virtual targets; "
                          "a serial target needs the board's profile)")
@@ -50,10 +55,10 @@ def pytest_addoption(parser) -> None:
 
 def pytest_configure(config) -> None:
     target = config.getoption("--hexbench-target", "virtual")
-    if target == "virtual":
+    if target in ("virtual", "simavr"):
         return
     if not target.startswith("serial:") or not target[len("serial:"):]:
-        raise pytest.UsageError(f"--hexbench-target {target!r}: expected 'virtual' or "
+        raise pytest.UsageError(f"--hexbench-target {target!r}: expected 'virtual', 'simavr' or "
                                 "'serial:<url>' (e.g. serial:/dev/ttyUSB0, serial:socket://host:7000)")
     if config.getoption("--hexbench-profile") == "both":
         raise pytest.UsageError(f"--hexbench-target {target}: give the board's firmware with "
@@ -91,6 +96,12 @@ class Bench:
         return self.target == "virtual"
 
     @property
+    def fresh(self) -> bool:
+        """The module powered up for this test (virtual or simavr): its boot is observable
+        and what a test does to it cannot leak into the next test."""
+        return self.target in ("virtual", "simavr")
+
+    @property
     def time_tolerance_ns(self) -> int:
         """How far a measured time may stray from the program's: exact on the virtual clock."""
         return 0 if self.virtual else 2 * self.pc.byte_ns + 20_000_000
@@ -104,7 +115,7 @@ class Bench:
 
     def boot(self, timeout_s: float = 30.0):
         """Wait for the boot sequence to finish (the ``COMM. LISTENING`` banner)."""
-        if not self.virtual:
+        if not self.fresh:
             pytest.skip(f"the boot banners need a power cycle: the module on {self.target} booted "
                         "before the port was opened")
         if not self.booted:
@@ -125,6 +136,9 @@ def hexbench_bench(request, hexbench_target: str, hexbench_profile: str) -> Iter
     from module_sim.fleet import Fleet
 
     baud = request.config.getoption("--hexbench-baud")
+    if hexbench_target == "simavr":
+        yield from _simavr_bench(hexbench_profile, baud)
+        return
     if hexbench_target != "virtual":
         yield from _serial_bench(hexbench_target, hexbench_profile, baud)
         return
@@ -141,7 +155,22 @@ def hexbench_bench(request, hexbench_target: str, hexbench_profile: str) -> Iter
         bus.close()
 
 
-def _serial_bench(target: str, profile: str, baud: int) -> Iterator[Bench]:
+def _simavr_bench(profile: str, baud: int) -> Iterator[Bench]:
+    """A fresh firmware module in simavr, held until the bridge has opened its IR pty."""
+    from hil.firmware import FirmwareError, FirmwareModule
+
+    try:
+        fw = FirmwareModule(1, profile, hold=True).start()
+    except FirmwareError as exc:
+        pytest.fail(f"target simavr: {exc}", pytrace=False)
+    try:
+        yield from _serial_bench(f"serial:{fw.ir_path}", profile, baud, simavr=True)
+    finally:
+        fw.close()
+
+
+def _serial_bench(target: str, profile: str, baud: int, *, simavr: bool = False
+                  ) -> Iterator[Bench]:
     """A PC endpoint whose transceiver is a serial port: bridge, bus and PC on the wall clock."""
     import serial
 
@@ -161,8 +190,11 @@ def _serial_bench(target: str, profile: str, baud: int) -> Iterator[Bench]:
         except (serial.SerialException, ValueError) as exc:
             pytest.fail(f"target {target}: {exc}", pytrace=False)
         pc = PcEndpoint(bus, baud=baud)
-        bench = Bench(target, profile, clock, bus, pc, bridge=bridge, booted=True)
-        _quiet(bench)
+        if simavr:  # the harness starts simulating once the bridge has opened the pty
+            bench = Bench("simavr", profile, clock, bus, pc, bridge=bridge)
+        else:
+            bench = Bench(target, profile, clock, bus, pc, bridge=bridge, booted=True)
+            _quiet(bench)
         yield bench
     finally:
         if bridge is not None:
@@ -191,6 +223,6 @@ def _quiet(bench: Bench, *, quiet_bytes: int = 4, timeout_s: float = 10.0) -> No
 
 @pytest.fixture
 def hexbench_pc(hexbench_bench: Bench):
-    if hexbench_bench.virtual:
+    if hexbench_bench.fresh:
         hexbench_bench.boot()
     return hexbench_bench.pc

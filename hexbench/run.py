@@ -31,6 +31,9 @@ def add_run_arguments(p: argparse.ArgumentParser, *, with_fleet: bool) -> None:
                    help="module ID is a real board: its central IR transceiver on PORT and its "
                         "debug UART1 on DEBUG_PORT (pyserial URLs); repeatable. The world runs "
                         "a twin of it (docs/hil.md)")
+    p.add_argument("--firmware", action="append", default=[], metavar="ID",
+                   help="module ID runs the C firmware (firmware/) in simavr, bridged like a real "
+                        "board; repeatable; needs --clock wall (docs/firmware.md)")
     if with_fleet:
         p.add_argument("--record", type=Path, metavar="FILE.mcap", help="record the run to MCAP")
         p.add_argument("--fault", action="append", default=[], metavar="SPEC",
@@ -47,9 +50,29 @@ def _scenario(args: argparse.Namespace):
 
     try:
         return override(load(args.scenario), seed=args.seed, profile=args.profile,
-                        faults=getattr(args, "fault", []), real=args.real)
+                        faults=getattr(args, "fault", []), real=args.real,
+                        firmware=getattr(args, "firmware", []))
     except ScenarioError as exc:
         raise UsageError(str(exc)) from None
+
+
+def _start_firmware(scenario, started: list):
+    """Start the simavr harness of every firmware module; from then on each is a real board
+    on the harness's two ptys (``started`` collects them, for closing)."""
+    import dataclasses
+
+    from hil.firmware import FirmwareModule
+
+    modules = []
+    for m in scenario.modules:
+        if m.kind == "firmware":
+            fw = FirmwareModule(m.id, scenario.profile).start()
+            started.append(fw)
+            print(f"firmware: m{m.id} ({scenario.profile}) in simavr, IR on {fw.ir_path}, "
+                  f"debug on {fw.debug_path}", flush=True)
+            m = dataclasses.replace(m, kind="real", port=fw.ir_path, debug_port=fw.debug_path)
+        modules.append(m)
+    return dataclasses.replace(scenario, modules=modules)
 
 
 def _bridges(bus, scenario, hil_port: str | None) -> list:
@@ -132,9 +155,9 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
     if not with_fleet and args.clock == "virtual":
         raise UsageError("a planner in its own process needs --clock wall: a virtual clock cannot "
                          "be shared with a fleet in another process")
-    real = [m for m in scenario.modules if m.kind == "real"]
+    real = [m for m in scenario.modules if m.kind in ("real", "firmware")]
     if real and args.clock == "virtual":
-        raise UsageError(f"scenario {scenario.name!r} has real modules "
+        raise UsageError(f"scenario {scenario.name!r} has real or firmware modules "
                          f"({', '.join(f'm{m.id}' for m in real)}): real hardware runs on the wall "
                          "clock; use --clock wall")
     bus = open_bus(args)
@@ -142,7 +165,10 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
     recorder = None
     bridges: list = []
     checks: list = []
+    firmware: list = []
     try:
+        if with_fleet:
+            scenario = _start_firmware(scenario, firmware)
         meta = RunMeta(scenario.name, scenario.profile, scenario.seed, args.planner, args.clock,
                        list(sys.argv), {}, fleet=args.fleet)
         if with_fleet and args.record:
@@ -175,6 +201,8 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
     finally:
         for b in bridges:
             b.close()
+        for fw in firmware:
+            fw.close()
         if recorder is not None:
             tally = recorder.close()
             print(f"recorded {tally.frames} frames, {tally.messages} samples -> "

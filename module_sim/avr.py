@@ -90,11 +90,17 @@ class Uart:
 
     # -- receive ----------------------------------------------------------------------------
     def receive(self, byte: int) -> None:
-        """A byte has completed on RX (called at its stop bit)."""
+        """A byte has completed on RX (called at its stop bit).
+
+        With the FIFO full and a byte waiting in the shift register, the new byte's start
+        bit overruns (DOR): the waiting byte is lost and the new one takes its place, as
+        the datasheet describes (and simavr's harness does)."""
         if len(self._rx) >= self.RX_DEPTH:
             self.overruns += 1
+            lost = self._rx[-1]
+            self._rx[-1] = byte
             if self.on_overrun is not None:
-                self.on_overrun(byte)
+                self.on_overrun(lost)
             return
         self._rx.append(byte)
         self.mcu._rx_ready(self)
@@ -138,6 +144,10 @@ class Mcu:
                 self.on_ports(self)
 
     # -- timer ----------------------------------------------------------------------------------
+    def tick_count(self) -> int:
+        """Timer0 overflows since power-up: what the firmware's free-running tick reads."""
+        return (self.clock.now_ns() - self._boot_ns) // TICK_NS
+
     def tick_deadline(self, ticks: int) -> int:
         """When ``ts`` reaches ``ticks`` after ``ts = 0`` now: the ticks-th overflow after now."""
         now = self.clock.now_ns()

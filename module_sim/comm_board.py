@@ -7,7 +7,6 @@ v2 additions (docs/protocol.md) are enabled by the profile.
 
 from __future__ import annotations
 
-import math
 from typing import Callable
 
 from bus import codec, rotations
@@ -17,7 +16,7 @@ from bus.functions import ACK_UNKNOWN, FUNCTIONS, Board, FunctionCode as F
 from bus.lattice import Cell, Direction, Joint, Side, body_to_global, move_rule
 from bus.pins import IR_SEL_MASK, LED_JOINT, LED_NEG, LED_POS, Pin, fold, ir_select_bits, ir_selected
 from bus.timing import (ECHO_TIMEOUT_TICKS, HANDSHAKE_RETRY_TICKS, LOCALIZE_LISTEN_TICKS,
-                        SUBSTRATE_ACK_DELAY_TICKS, TICK_NS, Baud,
+                        SUBSTRATE_ACK_DELAY_TICKS, Baud,
                         localize_slot_ticks)
 
 from .avr import TIMEOUT, Delay, Mcu, Program, Rx, Tx, Uart
@@ -26,6 +25,14 @@ from .profiles import Profile
 _STAR, _R, _L = ord("*"), ord("R"), ord("L")
 #: Relay frames of these functions carry 0, not 'N', as their first argument (Appendix A).
 _ZERO_ARG = {F.JxOpenAll, F.JxCloseAll}
+
+
+def _port_masks(table: dict[int, Pin]) -> dict[str, int]:
+    """The bits of a pin table, per port, in port order."""
+    masks: dict[str, int] = {}
+    for pin in table.values():
+        masks[pin.port] = masks.get(pin.port, 0) | pin.mask
+    return dict(sorted(masks.items()))
 
 
 class CommBoard(Mcu):
@@ -74,8 +81,9 @@ class CommBoard(Mcu):
         (self.clear_bits if on else self.set_bits)(pin.port, pin.mask)
 
     def _leds(self, table: dict[int, Pin], on: bool) -> None:
-        for pin in table.values():
-            self._led(pin, on)
+        # one write per port, as the C firmware does (a bit at a time costs it ~0.1 ms each)
+        for port, mask in _port_masks(table).items():
+            (self.clear_bits if on else self.set_bits)(port, mask)
 
     def SideOnP(self, i: int) -> None: self._led(LED_POS[fold(i)], True)
     def SideOffP(self, i: int) -> None: self._led(LED_POS[fold(i)], False)
@@ -287,10 +295,11 @@ class CommBoard(Mcu):
         u1 = self.uart1
         slot = localize_slot_ticks(u1.baud)
         here = self.neighbours()
-        t0 = self.clock.now_ns()
+        t0 = self.tick_count()  # slots count timer overflows, as the firmware can
 
         def tick_at(k: int) -> int:
-            return math.ceil((k * slot * TICK_NS - (self.clock.now_ns() - t0)) / TICK_NS)
+            """Ticks from now until slot boundary k (<= 0: it has passed)."""
+            return t0 + k * slot - self.tick_count()
 
         if self.L == 1:
             for w in range(6):

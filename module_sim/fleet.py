@@ -27,7 +27,7 @@ class Fleet:
                         for m in scenario.modules if m.kind == "virtual"}
         self.twins = {m.id: VirtualModule(bus, m.id, self.profile, ir_baud=scenario.ir_baud,
                                           mux_cut=mux_cut, origin="twin")
-                      for m in scenario.modules if m.kind == "real"}
+                      for m in scenario.modules if m.kind in ("real", "firmware")}
 
     def power_up(self, stagger: bool = True, *, freeze_gc: bool = False) -> None:
         """Switch the base on: every module boots, each timer at its own (seeded) phase.

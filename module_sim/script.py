@@ -12,7 +12,10 @@ byte time apart from ``time_ns`` on (after the previous entry's bytes). The log 
 * ``irside <byte> <channel>``: a byte sent while the multiplexer selected CD4051 channel
   ``channel`` (a side: it left by that side);
 * ``debug <byte>``: a byte of the control board's UART1;
-* ``port <board> <letter> <value>``: a PORTx register of ``comm`` or ``control`` changed.
+* ``port <board> <letter> <value>``: a PORTx register of ``comm`` or ``control`` changed;
+* ``irdrop <byte> <channel>``: a script byte that arrived while the multiplexer selected a
+  side (the comm board never saw it);
+* ``overrun <board> <uart> <byte>``: a byte lost to a full receiver (FIFO and shift register).
 """
 
 from __future__ import annotations
@@ -84,12 +87,20 @@ def run_script(script: Script, seconds: float, *, profile: str = "v2", module_id
             for byte in data:
                 start = max(t, free)
                 free = start + byte_ns
-                clock.call_at(free, module._ir_rx, 0, byte, start, False)
+                clock.call_at(free, _deliver, module, log, byte, start)
         module.power_up()
         clock.run(until_ns=int(seconds * NS_PER_S))
         return sorted(log, key=lambda e: e.t_ns)  # stable: same-instant events keep their order
     finally:
         bus.close()
+
+
+def _deliver(module: VirtualModule, log: list[Event], byte: int, start: int) -> None:
+    k = module.comm.ir_transceiver
+    if not module.comm.accepts_ir(0, start):
+        ch = IR_TRANSCEIVER_CHANNEL.get(k, 7) if k is not None else 7
+        log.append(Event(start, "irdrop", f"{byte:02x} {ch}"))
+    module._ir_rx(0, byte, start, False)
 
 
 def _watch(module: VirtualModule, log: list[Event]) -> None:
@@ -121,6 +132,13 @@ def _watch(module: VirtualModule, log: list[Event]) -> None:
     ctrl.uart1.on_tx = on_debug
 
     for board, name in ((comm, "comm"), (ctrl, "control")):
+        for n, uart in enumerate((board.uart0, board.uart1)):
+            def on_overrun(byte: int, name=name, n=n, uart=uart, chained=uart.on_overrun) -> None:
+                # at the new byte's start bit, when the chip loses the waiting one
+                log.append(Event(clock.now_ns() - uart.byte_ns, "overrun", f"{name} {n} {byte:02x}"))
+                if chained is not None:
+                    chained(byte)
+            uart.on_overrun = on_overrun
         seen = dict(board.port)
         chained = board.on_ports
 

@@ -123,11 +123,19 @@ void board_init(const uint8_t outputs[5])
 #endif
     UCSR1C = _BV(URSEL1) | _BV(UCSZ11) | _BV(UCSZ10);
     UCSR1B = _BV(RXEN1) | _BV(TXEN1);
-    /* Timer0: prescaler 64, reloaded so it overflows every 156 counts = 9.984 ms */
-    TCNT0 = TIMER0_RELOAD;
-    TCCR0 = _BV(CS01) | _BV(CS00);
+    /* Timer0 (started at power-up): prescaler 64, reloaded so it overflows every 156
+     * counts = 9.984 ms */
     TIMSK |= _BV(TOIE0);
     sei();
+}
+
+/* Start Timer0 before the C runtime clears .bss and copies .data (about a millisecond at
+ * 1 MHz), so its tick grid starts at power-up as in the model; its interrupt is enabled
+ * in board_init. */
+__attribute__((naked, used, section(".init3"))) static void timer_at_power_up(void)
+{
+    TCNT0 = TIMER0_RELOAD;
+    TCCR0 = _BV(CS01) | _BV(CS00);
 }
 
 int main(void)

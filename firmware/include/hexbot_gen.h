@@ -182,6 +182,11 @@
 #define COMM_OUTPUTS_E 0x07
 #define IR_SEL_PORT 0
 #define IR_SEL_MASK 0x07
+/* CD4051 channel = A + 2B + 4C: the PORTA bit numbers of A, B, C */
+#define IR_SEL_A_BIT 2
+#define IR_SEL_B_BIT 1
+#define IR_SEL_C_BIT 0
+#define IR_CENTRE_CHANNEL 2
 /* PORTA bits IrSel(transceiver) leaves set, transceiver 0 (centre) .. 6 */
 #define IR_SEL_BITS {0x02, 0x00, 0x06, 0x05, 0x03, 0x01, 0x04}
 

@@ -39,7 +39,7 @@ static uint8_t id, selected = 1, addressed, v2_active;
 #endif
 static uint8_t substrate_turn;
 static uint8_t frame[10]; /* code and 8 arguments (and room to resynchronise) */
-static uint8_t out[16];   /* a line being built for UART1 */
+static uint8_t out[24];   /* a line being built for UART1: the longest, POS, is 17 bytes */
 
 /* --- IR multiplexer and LEDs ------------------------------------------------------ */
 static void IrSel(uint8_t i)
@@ -56,10 +56,15 @@ static void led(const uint8_t *ports, const uint8_t *masks, int16_t i, uint8_t o
     port_change(fw_byte(&ports[k]), fw_byte(&masks[k]), !on); /* active low */
 }
 
+/* All six LEDs of a kind: one write per port, in port order. */
 static void leds(const uint8_t *ports, const uint8_t *masks, uint8_t on)
 {
+    uint8_t mask[5] = {0, 0, 0, 0, 0};
     for (uint8_t k = 1; k <= 6; k++)
-        led(ports, masks, k, on);
+        mask[fw_byte(&ports[k])] |= fw_byte(&masks[k]);
+    for (uint8_t p = 0; p < 5; p++)
+        if (mask[p])
+            port_change(p, mask[p], !on); /* active low */
 }
 
 static void LOn(void)

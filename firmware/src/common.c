@@ -19,6 +19,8 @@ static const int8_t STEPS_SCCW[] FW_CONST = ROT_SCCW_AS_RAN; /* S(i-5) negative,
 
 uint8_t fold(int16_t i)
 {
+    if (i >= 1 && i <= 6)
+        return (uint8_t)i; /* the usual case: no division on a chip without one */
     int16_t r = (i - 1) % 6;
     return (uint8_t)((r < 0 ? r + 6 : r) + 1);
 }

@@ -54,8 +54,16 @@ static void SxOff(int16_t i)
 
 static void JxAll(uint8_t on)
 {
+    /* one write per port, as the thesis's PORTA mask did */
+    uint8_t mask[5] = {0, 0, 0, 0, 0};
     for (uint8_t k = 1; k <= 6; k++)
-        pin(JOINT_PORT, JOINT_MASK, k, on);
+        mask[fw_byte(&JOINT_PORT[k])] |= fw_byte(&JOINT_MASK[k]);
+    for (uint8_t p = 0; p < 5; p++) {
+        if (mask[p]) {
+            uint8_t v = board_port(p);
+            write_port(p, on ? (uint8_t)(v | mask[p]) : (uint8_t)(v & ~mask[p]));
+        }
+    }
 }
 
 static void SxOffAll(void)

@@ -15,8 +15,9 @@ from bus.timing import LOCALIZE_LISTEN_TICKS, SUBSTRATE_ACK_DELAY_TICKS, TICK_NS
 LYREF_TICKS = 20  # LYref: side LED positive 10 ticks, negative 10 ticks
 
 
-def _virtual_only(bench, why: str) -> None:
-    if not bench.virtual:
+def _fresh_only(bench, why: str) -> None:
+    """Skip unless the module powered up for this test (virtual or simavr targets)."""
+    if not bench.fresh:
         pytest.skip(f"{why} on {bench.target}")
 
 
@@ -35,7 +36,7 @@ def _ack_after(bench, pc, fn, *args, timeout_s=10.0):
 def test_ref_makes_a_substrate_that_answers_100_ticks_late(hexbench_bench, hexbench_pc):
     """Ref (65): M=0, S=1 -> the ACK carries "S: " and comes after Ref's three LYref flashes
     (60 ticks) plus the substrate's 100 ticks; every later ACK is an S ACK, 100 ticks late."""
-    _virtual_only(hexbench_bench, "Ref cannot be undone without a power cycle (every later test's "
+    _fresh_only(hexbench_bench, "Ref cannot be undone without a power cycle (every later test's "
                   "ACK would change)")
     tol = hexbench_bench.time_tolerance_ns
     ack, waited, _ = _ack_after(hexbench_bench, hexbench_pc, F.Ref)
@@ -51,7 +52,7 @@ def test_ref_makes_a_substrate_that_answers_100_ticks_late(hexbench_bench, hexbe
 def test_report_after_ref(hexbench_bench, hexbench_pc):
     """v2: Ref then Report: POS id, X = Y = 0, Yref 0, flags L and S (not M). The thesis module
     does not know Report: 'N', from a substrate."""
-    _virtual_only(hexbench_bench, "Ref cannot be undone without a power cycle (every later test's "
+    _fresh_only(hexbench_bench, "Ref cannot be undone without a power cycle (every later test's "
                   "ACK would change)")
     hexbench_pc.ack(F.Ref, timeout_s=10)
     mark = len(hexbench_pc.received)
@@ -105,7 +106,7 @@ def test_localize_without_neighbours_reports_nothing(hexbench_bench, hexbench_pc
     the six sides, then runs LCircle (240 ticks). Neither prints LOCALIZED, and L stays 0."""
     tol = hexbench_bench.time_tolerance_ns
     if hexbench_bench.profile == "thesis-2009":
-        _virtual_only(hexbench_bench, "the thesis Localize keeps the module busy 11.4 s")
+        _fresh_only(hexbench_bench, "the thesis Localize keeps the module busy 11.4 s")
     ack, waited, got = _ack_after(hexbench_bench, hexbench_pc, F.Localize, timeout_s=20)
     assert ack.frame.raw == codec.encode_ack(F.Localize, role=b"M: ")
     assert [r.frame.kind for r in got] == [Kind.ACK]
@@ -126,7 +127,7 @@ def test_reference_localize_alone(hexbench_bench, hexbench_pc):
     Thesis: it sends MSG1 six times on sides 2 and 3 whoever is there: 24 x 15 bytes on the
     wire, (0,1) S=5 on side 2 and (1,0) S=6 on side 3. Either way no LOCALIZED line."""
     bench = hexbench_bench
-    _virtual_only(bench, "Ref cannot be undone without a power cycle, and the step takes 20 s")
+    _fresh_only(bench, "Ref cannot be undone without a power cycle, and the step takes 20 s")
     tol = bench.time_tolerance_ns
     side = []
     if bench.virtual:

@@ -1,0 +1,27 @@
+/* Where the harness plugs a HexBot module's outside world into the two ATmega162s, from
+ * firmware/include/hexbot_gen.h (generated from bus/pins.py, the project's one truth).
+ * Ports are indices 0..4 = A..E. */
+#ifndef HEXBOT_PINS_H
+#define HEXBOT_PINS_H
+
+#include <stdint.h>
+
+#include "../include/hexbot_gen.h"
+
+/* Control board: --dip N is what this port's pins read (all eight bits). */
+#define PINS_DIP_PORT DIP_PORT
+
+/* Comm board: the optical switch of side k (1..6) is bit PINS_SWITCH_MASKS[k] of port
+ * PINS_SWITCH_PORTS[k], high when a neighbour is there (--switches bit k-1). */
+static const uint8_t PINS_SWITCH_PORTS[7] = OPTICAL_SWITCH_PORTS;
+static const uint8_t PINS_SWITCH_MASKS[7] = OPTICAL_SWITCH_MASKS;
+
+/* Comm board: the IR multiplexer in front of USART1, selected by PORTA bits; the centre
+ * transceiver (the one a PC above the module sees) is on channel IR_CENTRE_CHANNEL. */
+#define PINS_IR_MUX_PORT IR_SEL_PORT
+#define PINS_IR_MUX_A IR_SEL_A_BIT
+#define PINS_IR_MUX_B IR_SEL_B_BIT
+#define PINS_IR_MUX_C IR_SEL_C_BIT
+#define PINS_IR_CENTRE IR_CENTRE_CHANNEL
+
+#endif

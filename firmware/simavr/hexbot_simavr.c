@@ -1,0 +1,863 @@
+/* hexbot-simavr: one HexBot module (comm + control ATmega162 at 1 MHz) in simavr.
+ *
+ * The two cores run in lockstep on one time base: the one behind always steps next, and a
+ * 64-cycle heartbeat bounds how far SLEEP may jump, so they stay within ~70 cycles.
+ * Simulated time is cycle * 1000 ns.  Wiring: comm USART0 <-> control USART0 (4800 Bd);
+ * comm USART1 -> IR multiplexer -> centre transceiver -> IR pseudo-terminal (300 Bd);
+ * control USART1 <-> debug pseudo-terminal.
+ *
+ * Every byte into a USART travels as a frame on a "line": it starts when the sender's
+ * wire is free, ends one frame later, and RXC rises at its end.  The receiver holds two
+ * bytes plus one in the shift register; a fourth start bit loses the shifted one (DOR),
+ * as on the chip.  simavr 1.6's own 64-byte input FIFO is never used past that. */
+#define _GNU_SOURCE
+#include <errno.h>
+#include <fcntl.h>
+#include <getopt.h>
+#include <poll.h>
+#include <pty.h>
+#include <signal.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <termios.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "sim_avr.h"
+#include "sim_elf.h"
+#include "sim_cycle_timers.h"
+#include "sim_interrupts.h"
+#include "sim_regbit.h"
+#include "avr_ioport.h"
+#include "avr_uart.h"
+#include "atmega162.h"
+#include "hexbot_pins.h"
+
+#define F_CPU 1000000ULL
+#define NS_PER_CYCLE (1000000000ULL / F_CPU)
+#define SLICE 1000		/* cycles between pacing checks and pty polls (1 ms) */
+#define HEARTBEAT 64		/* longest SLEEP jump, in cycles */
+#define BEHIND_WARN_NS 100000000ULL
+#define IR_PC_BAUD 300		/* the PC's side of the IR link */
+#define DEBUG_PC_BAUD 4800	/* the PC's side of the debug link */
+#define LINE_MAX_QUEUE 65536	/* bytes waiting to go onto one wire */
+#define FLASH_SIZE 16384
+
+enum { COMM, CONTROL };
+static const char *const BOARD[2] = { "comm", "control" };
+
+typedef struct board {
+	int id;
+	avr_t *avr;
+	int halted;
+	uint8_t port[5];	/* last logged PORTx values */
+} board_t;
+
+enum { F_WAIT, F_SHIFT, F_HELD };
+typedef struct frame {
+	uint8_t value, state;
+	avr_cycle_count_t start, end, bit;	/* bit: the sender's bit time */
+} frame_t;
+
+typedef struct line {		/* the wire into one USART receiver */
+	board_t *rx;
+	int n;			/* USART number on rx */
+	int ir;			/* gated by the comm board's IR multiplexer */
+	frame_t *q;
+	size_t cap, head, len;
+	avr_cycle_count_t busy;		/* the wire carries a frame until then */
+	avr_cycle_count_t last_end;	/* end of the frame last handed to simavr */
+	unsigned long overruns, gated, rx_off, full;
+} line_t;
+
+typedef struct pty {
+	const char *link;
+	int fd, linked;
+	char slave[128];
+	line_t *in;		/* bytes the PC sends go here */
+	unsigned baud;
+	struct { avr_cycle_count_t due; uint8_t b; } out[4096];
+	size_t ohead, olen;
+	unsigned long lost;	/* written with no reader, or the reader not keeping up */
+} pty_t;
+
+typedef struct event {
+	avr_cycle_count_t t;
+	char text[56];
+} event_t;
+
+static struct {
+	const char *elf[2], *ir_link, *debug_link, *ir_script, *debug_script, *log;
+	int dip, switches, fast, verbose, hold;
+	double seconds;
+} opt;
+
+static board_t boards[2];
+static line_t lines[2][2];		/* [board][usart] */
+static avr_cycle_count_t tx_busy[2][2];	/* each transmitter's wire */
+static pty_t ir_pty = { .fd = -1, .baud = IR_PC_BAUD };
+static pty_t debug_pty = { .fd = -1, .baud = DEBUG_PC_BAUD };
+static FILE *logfp;
+static event_t *events;
+static size_t nevents, cap_events;
+static unsigned long ir_side_out;
+static volatile sig_atomic_t stop_signal;
+
+/* ------------------------------------------------------------------------------------ */
+
+static void cleanup(void)
+{
+	pty_t *ps[2] = { &ir_pty, &debug_pty };
+	for (int i = 0; i < 2; i++) {
+		char target[sizeof ps[i]->slave];
+		ssize_t n;
+		if (ps[i]->linked && (n = readlink(ps[i]->link, target, sizeof target - 1)) > 0) {
+			target[n] = 0;
+			if (!strcmp(target, ps[i]->slave))
+				unlink(ps[i]->link);
+		}
+		ps[i]->linked = 0;
+	}
+	if (logfp && logfp != stdout)
+		fclose(logfp);
+	else if (logfp)
+		fflush(logfp);
+	logfp = NULL;
+}
+
+static void die(int code, const char *fmt, ...)
+{
+	va_list ap;
+	va_start(ap, fmt);
+	fputs("hexbot-simavr: ", stderr);
+	vfprintf(stderr, fmt, ap);
+	fputc('\n', stderr);
+	va_end(ap);
+	cleanup();
+	exit(code);
+}
+
+static void *xrealloc(void *p, size_t n)
+{
+	p = realloc(p, n);
+	if (!p)
+		die(1, "out of memory");
+	return p;
+}
+
+/* simavr's own messages only with --verbose: errors stay one line. */
+static void quiet_logger(avr_t *avr, const int level, const char *fmt, va_list ap)
+{
+	(void)avr;
+	if (!opt.verbose || level > LOG_WARNING)
+		return;
+	fputs("hexbot-simavr: simavr: ", stderr);
+	vfprintf(stderr, fmt, ap);
+}
+
+static avr_cycle_count_t now_global(void)
+{
+	avr_cycle_count_t t = ~(avr_cycle_count_t)0;
+	for (int i = 0; i < 2; i++)
+		if (!boards[i].halted && boards[i].avr->cycle < t)
+			t = boards[i].avr->cycle;
+	return t;
+}
+
+/* --- the event log: kept sorted, written once both cores have passed it ----------- */
+
+static void event(avr_cycle_count_t t, const char *fmt, ...)
+{
+	if (!logfp)
+		return;
+	if (nevents == cap_events) {
+		cap_events = cap_events ? 2 * cap_events : 256;
+		events = xrealloc(events, cap_events * sizeof *events);
+	}
+	size_t i = nevents++;
+	while (i && events[i - 1].t > t) {	/* stable: equal times keep their order */
+		events[i] = events[i - 1];
+		i--;
+	}
+	events[i].t = t;
+	va_list ap;
+	va_start(ap, fmt);
+	vsnprintf(events[i].text, sizeof events[i].text, fmt, ap);
+	va_end(ap);
+}
+
+static void flush_events(avr_cycle_count_t upto)
+{
+	size_t i = 0;
+	for (; i < nevents && events[i].t <= upto; i++)
+		fprintf(logfp, "%llu %s\n", (unsigned long long)(events[i].t * NS_PER_CYCLE),
+			events[i].text);
+	memmove(events, events + i, (nevents - i) * sizeof *events);
+	nevents -= i;
+}
+
+/* --- the IR multiplexer ------------------------------------------------------------- */
+
+static avr_cycle_count_t ir_mux_at;	/* when the multiplexer last changed channel */
+static int ir_mux_last = -1;
+
+static int ir_channel(void)
+{
+	uint8_t a = boards[COMM].avr->data[atmega162_port_addr('A' + PINS_IR_MUX_PORT)];
+	return ((a >> PINS_IR_MUX_A) & 1) + 2 * ((a >> PINS_IR_MUX_B) & 1) +
+	       4 * ((a >> PINS_IR_MUX_C) & 1);
+}
+
+/* --- lines: frames into a USART receiver ---------------------------------------------- */
+
+static unsigned fifo_count(avr_uart_t *p)
+{
+	return (unsigned)(p->input.write + uart_fifo_fifo_size - p->input.read) &
+	       (uart_fifo_fifo_size - 1);
+}
+
+static void line_service(line_t *l);
+
+static avr_cycle_count_t line_timer(avr_t *avr, avr_cycle_count_t when, void *param)
+{
+	(void)avr;
+	(void)when;
+	line_service(param);
+	return 0;		/* line_service registers the next wake itself */
+}
+
+static void line_pop(line_t *l)
+{
+	l->head = (l->head + 1) % l->cap;
+	l->len--;
+}
+
+/* Hand a frame to simavr.  A sender whose bit time is more than 4 % off the receiver's
+ * gives a framing error (the byte is passed on with FE set). */
+static void line_deliver(line_t *l, frame_t *f)
+{
+	avr_t *avr = l->rx->avr;
+	avr_uart_t *p = atmega162_uart(avr, l->n);
+	if (!avr_regbit_get(avr, p->rxen)) {
+		l->rx_off++;
+		return;
+	}
+	avr_cycle_count_t rx_bit = atmega162_uart_bit_cycles(avr, l->n);
+	avr_cycle_count_t diff = rx_bit > f->bit ? rx_bit - f->bit : f->bit - rx_bit;
+	uint32_t v = f->value | (diff * 25 > f->bit ? UART_INPUT_FE : 0);
+	avr_raise_irq(p->io.irq + UART_IRQ_INPUT, v);
+	l->last_end = f->end;
+}
+
+static void line_service(line_t *l)
+{
+	avr_t *avr = l->rx->avr;
+	avr_uart_t *p = atmega162_uart(avr, l->n);
+	avr_cycle_count_t now = avr->cycle, wake = 0;
+
+	while (l->len && !wake) {
+		frame_t *f = &l->q[l->head];
+		unsigned n = fifo_count(p);
+		if (f->state == F_WAIT) {
+			if (now < f->start) {
+				wake = f->start;
+				break;
+			}
+			if (l->ir && ir_channel() != PINS_IR_CENTRE) {
+				l->gated++;
+				event(f->start, "irdrop %02x %d", f->value, ir_channel());
+				line_pop(l);
+				continue;
+			}
+			f->state = F_SHIFT;
+		}
+		if (f->state == F_SHIFT && l->ir) {
+			/* IR: the byte counts only if the multiplexer stayed on the centre for
+			 * all of it (the model's rule, docs/protocol.md); decide at its end */
+			if (now < f->end) {
+				wake = f->end;
+				break;
+			}
+			if (ir_mux_at > f->start || ir_channel() != PINS_IR_CENTRE) {
+				l->gated++;
+				event(f->start, "irdrop %02x %d", f->value, ir_channel());
+				line_pop(l);
+				continue;
+			}
+			if (!n) {
+				line_deliver(l, f);
+				line_pop(l);
+				continue;
+			}
+			f->state = F_HELD;
+		}
+		if (f->state == F_SHIFT) {
+			if (!n) {
+				/* simavr raises RXC one of its frames after the input: time it
+				 * so that lands on the end of this frame */
+				avr_cycle_count_t t = f->end > p->cycles_per_byte ?
+						      f->end - p->cycles_per_byte : 0;
+				if (t < f->start)
+					t = f->start;
+				if (now < t) {
+					wake = t;
+					break;
+				}
+				line_deliver(l, f);
+				line_pop(l);
+				continue;
+			}
+			if (now < f->end) {
+				wake = f->end;
+				break;
+			}
+			f->state = F_HELD;
+		}
+		/* F_HELD: complete, in the shift register until the buffer has room */
+		if (n < 2) {
+			line_deliver(l, f);
+			line_pop(l);
+			continue;
+		}
+		frame_t *next = l->len > 1 ? &l->q[(l->head + 1) % l->cap] : NULL;
+		if (next && now >= next->start) {
+			l->overruns++;
+			avr_regbit_setto(avr, p->dor, 1);
+			event(next->start, "overrun %s %d %02x", BOARD[l->rx->id], l->n, f->value);
+			line_pop(l);
+			continue;
+		}
+		wake = next ? next->start : 0;	/* else a read of UDR calls us */
+		break;
+	}
+
+	/* RXC: up at the end of the newest byte, or at once for an older one (simavr may
+	 * have dropped it after two fast reads, or be about to raise it a frame late). */
+	unsigned n = fifo_count(p);
+	if (n && !avr_regbit_get(avr, p->rxc.raised)) {
+		avr_cycle_count_t due = n >= 2 || l->last_end <= now ? now : l->last_end;
+		if (due <= now)
+			avr_raise_interrupt(avr, &p->rxc);
+		else if (!wake || due < wake)
+			wake = due;
+	}
+	if (wake)
+		avr_cycle_timer_register(avr, wake - now, line_timer, l);
+	else
+		avr_cycle_timer_cancel(avr, line_timer, l);
+}
+
+static void line_push(line_t *l, uint8_t value, avr_cycle_count_t at,
+		      avr_cycle_count_t frame, avr_cycle_count_t bit)
+{
+	if (l->len >= LINE_MAX_QUEUE) {
+		l->full++;
+		return;
+	}
+	if (l->len == l->cap) {
+		size_t cap = l->cap ? 2 * l->cap : 64;
+		frame_t *q = xrealloc(NULL, cap * sizeof *q);
+		for (size_t i = 0; i < l->len; i++)
+			q[i] = l->q[(l->head + i) % l->cap];
+		free(l->q);
+		l->q = q;
+		l->cap = cap;
+		l->head = 0;
+	}
+	avr_cycle_count_t start = at > l->busy ? at : l->busy;
+	l->busy = start + frame;
+	l->q[(l->head + l->len++) % l->cap] = (frame_t){ value, F_WAIT, start, start + frame, bit };
+	line_service(l);	/* a new frame may be due now, or end a held one (overrun) */
+}
+
+/* A byte from the PC side: it sends at its own nominal baud, 8N1. */
+static void line_push_pc(line_t *l, uint8_t value, avr_cycle_count_t at, unsigned baud)
+{
+	avr_cycle_count_t frame = (10 * F_CPU + baud / 2) / baud;
+	line_push(l, value, at, frame, (F_CPU + baud / 2) / baud);
+}
+
+static void on_udr_read(avr_t *avr, avr_io_addr_t addr, uint8_t v, void *param)
+{
+	(void)avr;
+	(void)addr;
+	(void)v;
+	line_service(param);
+}
+
+/* --- pseudo-terminals ------------------------------------------------------------- */
+
+static void pty_open(pty_t *p)
+{
+	int m, s;
+	struct termios t;
+	if (openpty(&m, &s, p->slave, NULL, NULL) < 0)
+		die(2, "openpty: %s", strerror(errno));
+	if (tcgetattr(s, &t) == 0) {
+		cfmakeraw(&t);
+		tcsetattr(s, TCSANOW, &t);
+	}
+	close(s);	/* so the master sees POLLHUP while nobody has the slave open */
+	fcntl(m, F_SETFL, fcntl(m, F_GETFL) | O_NONBLOCK);
+	fcntl(m, F_SETFD, FD_CLOEXEC);
+	p->fd = m;
+	if (!p->link)
+		return;
+	struct stat st;
+	if (lstat(p->link, &st) == 0) {
+		if (!S_ISLNK(st.st_mode))
+			die(2, "%s exists and is not a symlink", p->link);
+		unlink(p->link);
+	}
+	if (symlink(p->slave, p->link) < 0)
+		die(2, "cannot link %s: %s", p->link, strerror(errno));
+	p->linked = 1;
+}
+
+/* A byte reaches the PC when its stop bit ends. */
+static void pty_queue(pty_t *p, uint8_t b, avr_cycle_count_t due)
+{
+	if (p->fd < 0)
+		return;
+	if (p->olen == sizeof p->out / sizeof p->out[0]) {
+		p->lost++;
+		return;
+	}
+	size_t i = (p->ohead + p->olen++) % (sizeof p->out / sizeof p->out[0]);
+	p->out[i].due = due;
+	p->out[i].b = b;
+}
+
+static void pty_flush(pty_t *p, avr_cycle_count_t now)
+{
+	while (p->olen && p->out[p->ohead].due <= now) {
+		struct pollfd pfd = { .fd = p->fd, .events = POLLOUT };
+		uint8_t b = p->out[p->ohead].b;
+		/* nobody has the slave open: drop, so a later reader gets no stale bytes */
+		if (poll(&pfd, 1, 0) < 0 || (pfd.revents & (POLLHUP | POLLERR)) ||
+		    write(p->fd, &b, 1) != 1)
+			p->lost++;
+		p->ohead = (p->ohead + 1) % (sizeof p->out / sizeof p->out[0]);
+		p->olen--;
+	}
+}
+
+static void pty_poll(pty_t *p, avr_cycle_count_t now)
+{
+	uint8_t buf[256];
+	ssize_t n;
+	if (p->fd < 0)
+		return;
+	while ((n = read(p->fd, buf, sizeof buf)) > 0)	/* EIO: no slave open; EAGAIN: none */
+		for (ssize_t i = 0; i < n; i++)
+			line_push_pc(p->in, buf[i], now, p->baud);
+}
+
+/* --- transmitters ------------------------------------------------------------------- */
+
+/* The core raises UART_IRQ_OUTPUT when a byte's start bit begins (it models UDR and the
+ * shift register, atmega162.c), so logged times are start bits; the chip starts one
+ * within a bit time of the UDR write that found the transmitter idle.  The frame occupies
+ * the wire for one frame time. */
+static void on_tx(avr_irq_t *irq, uint32_t value, void *param)
+{
+	(void)irq;
+	int id = (int)(intptr_t)param >> 1, n = (int)(intptr_t)param & 1;
+	avr_t *avr = boards[id].avr;
+	avr_cycle_count_t now = avr->cycle, frame = atmega162_uart_frame_cycles(avr, n);
+	avr_cycle_count_t start = now > tx_busy[id][n] ? now : tx_busy[id][n];
+	uint8_t b = value & 0xFF;
+	tx_busy[id][n] = start + frame;
+
+	if (n == 0) {
+		line_push(&lines[!id][0], b, start, frame, atmega162_uart_bit_cycles(avr, 0));
+	} else if (id == CONTROL) {
+		event(now, "debug %02x", b);
+		pty_queue(&debug_pty, b, start + frame);
+	} else {
+		int ch = ir_channel();
+		if (ch == PINS_IR_CENTRE) {
+			event(now, "ir %02x", b);
+			pty_queue(&ir_pty, b, start + frame);
+		} else {
+			ir_side_out++;
+			event(now, "irside %02x %d", b, ch);
+		}
+	}
+}
+
+static void on_port(avr_irq_t *irq, uint32_t value, void *param)
+{
+	(void)irq;
+	int id = (int)(intptr_t)param / 8, port = (int)(intptr_t)param % 8;
+	board_t *b = &boards[id];
+	if (b->port[port] == (uint8_t)value)
+		return;
+	b->port[port] = (uint8_t)value;
+	event(b->avr->cycle, "port %s %c %02x", BOARD[id], 'A' + port, (unsigned)value & 0xFF);
+	if (id == COMM && port == PINS_IR_MUX_PORT && ir_channel() != ir_mux_last) {
+		ir_mux_last = ir_channel();
+		ir_mux_at = b->avr->cycle;
+	}
+}
+
+static avr_cycle_count_t heartbeat(avr_t *avr, avr_cycle_count_t when, void *param)
+{
+	(void)avr;
+	(void)param;
+	return when + HEARTBEAT;
+}
+
+/* --- setup ---------------------------------------------------------------------------- */
+
+/* One line and exit 2 for anything that is not a readable AVR ELF that fits. */
+static void load_elf(board_t *b, const char *path)
+{
+	unsigned char h[20];
+	FILE *f = fopen(path, "rb");
+	if (!f)
+		die(2, "cannot read %s ELF %s: %s", BOARD[b->id], path, strerror(errno));
+	size_t n = fread(h, 1, sizeof h, f);
+	fclose(f);
+	if (n < sizeof h || memcmp(h, "\177ELF", 4) || h[4] != 1 /* 32-bit */ ||
+	    h[5] != 1 /* little endian */ || h[18] != 83 || h[19] != 0 /* EM_AVR */)
+		die(2, "%s is not an AVR ELF (%s board)", path, BOARD[b->id]);
+
+	elf_firmware_t fw;
+	memset(&fw, 0, sizeof fw);
+	if (elf_read_firmware(path, &fw) != 0 || !fw.flashsize)
+		die(2, "cannot load %s (%s board)", path, BOARD[b->id]);
+	if (fw.flashbase + fw.flashsize > FLASH_SIZE)
+		die(2, "%s needs %u bytes of flash, the ATmega162 has %d", path,
+		    fw.flashbase + fw.flashsize, FLASH_SIZE);
+	if (fw.mmcu[0] && strcmp(fw.mmcu, "atmega162"))
+		die(2, "%s is built for %s, not atmega162", path, fw.mmcu);
+	avr_load_firmware(b->avr, &fw);
+	b->avr->frequency = F_CPU;	/* the boards' crystal, whatever the ELF says */
+}
+
+static void set_inputs(avr_t *avr, int port, uint8_t mask, uint8_t value)
+{
+	char name = 'A' + port;
+	avr_ioport_external_t e = { .name = name, .mask = mask, .value = value };
+	avr_ioctl(avr, AVR_IOCTL_IOPORT_SET_EXTERNAL(name), &e);
+	for (int i = 0; i < 8; i++)
+		if (mask & (1 << i))
+			avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(name), i),
+				      (value >> i) & 1);
+}
+
+static void board_setup(int id)
+{
+	board_t *b = &boards[id];
+	b->id = id;
+	b->avr = atmega162_new();
+	if (!b->avr)
+		die(1, "out of memory");
+	load_elf(b, opt.elf[id]);
+	avr_t *avr = b->avr;
+	for (int n = 0; n < 2; n++) {
+		line_t *l = &lines[id][n];
+		l->rx = b;
+		l->n = n;
+		l->ir = id == COMM && n == 1;
+		avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0' + n),
+						      UART_IRQ_OUTPUT),
+					on_tx, (void *)(intptr_t)(id << 1 | n));
+		atmega162_after_read(avr, n ? M162_UDR1 : M162_UDR0, on_udr_read, l);
+	}
+	for (int p = 0; p < 5; p++)
+		avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('A' + p),
+						      IOPORT_IRQ_REG_PORT),
+					on_port, (void *)(intptr_t)(id * 8 + p));
+	avr_cycle_timer_register(avr, HEARTBEAT, heartbeat, NULL);
+
+	if (id == CONTROL) {
+		set_inputs(avr, PINS_DIP_PORT, 0xFF, (uint8_t)opt.dip);
+	} else {
+		uint8_t mask[5] = { 0 }, value[5] = { 0 };
+		for (int k = 1; k <= 6; k++) {
+			mask[PINS_SWITCH_PORTS[k]] |= PINS_SWITCH_MASKS[k];
+			if (opt.switches & (1 << (k - 1)))
+				value[PINS_SWITCH_PORTS[k]] |= PINS_SWITCH_MASKS[k];
+		}
+		for (int p = 0; p < 5; p++)
+			if (mask[p])
+				set_inputs(avr, p, mask[p], value[p]);
+	}
+}
+
+/* "<sim_time_ns> <hex bytes>" lines, '#' comments; bytes go onto the line in time order. */
+typedef struct { avr_cycle_count_t t; size_t at; uint8_t b; } scripted_t;
+
+static int scripted_cmp(const void *a, const void *b)
+{
+	const scripted_t *x = a, *y = b;
+	if (x->t != y->t)
+		return x->t < y->t ? -1 : 1;
+	return x->at < y->at ? -1 : x->at > y->at;
+}
+
+static void load_script(const char *path, line_t *l, unsigned baud)
+{
+	FILE *f = fopen(path, "r");
+	if (!f)
+		die(2, "cannot read script %s: %s", path, strerror(errno));
+	scripted_t *s = NULL;
+	size_t ns = 0, cap = 0, lineno = 0;
+	char buf[8192];
+	while (fgets(buf, sizeof buf, f)) {
+		lineno++;
+		char *p = buf, *end;
+		while (*p == ' ' || *p == '\t')
+			p++;
+		if (*p == '#' || *p == '\n' || *p == '\r' || !*p)
+			continue;
+		errno = 0;
+		unsigned long long ns_time = strtoull(p, &end, 10);
+		if (end == p || errno || (*end != ' ' && *end != '\t'))
+			die(2, "%s line %zu: expected <sim_time_ns> <hex bytes>", path, lineno);
+		int hi = -1;
+		for (p = end; *p && *p != '\n' && *p != '\r' && *p != '#'; p++) {
+			if (*p == ' ' || *p == '\t')
+				continue;
+			int d = *p >= '0' && *p <= '9' ? *p - '0' :
+				(*p | 0x20) >= 'a' && (*p | 0x20) <= 'f' ? (*p | 0x20) - 'a' + 10 : -1;
+			if (d < 0)
+				die(2, "%s line %zu: '%c' is not a hex digit", path, lineno, *p);
+			if (hi < 0) {
+				hi = d;
+				continue;
+			}
+			if (ns == cap)
+				s = xrealloc(s, (cap = cap ? 2 * cap : 256) * sizeof *s);
+			s[ns] = (scripted_t){ ns_time / NS_PER_CYCLE, ns, (uint8_t)(hi << 4 | d) };
+			ns++;
+			hi = -1;
+		}
+		if (hi >= 0)
+			die(2, "%s line %zu: odd number of hex digits", path, lineno);
+	}
+	fclose(f);
+	qsort(s, ns, sizeof *s, scripted_cmp);
+	for (size_t i = 0; i < ns; i++)
+		line_push_pc(l, s[i].b, s[i].t, baud);
+	free(s);
+}
+
+/* --- running ------------------------------------------------------------------------ */
+
+static void step_until(avr_cycle_count_t target)
+{
+	for (;;) {
+		board_t *b = NULL;
+		for (int i = 0; i < 2; i++)
+			if (!boards[i].halted && (!b || boards[i].avr->cycle < b->avr->cycle))
+				b = &boards[i];
+		if (!b || b->avr->cycle >= target)
+			return;
+		avr_flashaddr_t pc = b->avr->pc;	/* the instruction this step executes */
+		int state = avr_run(b->avr);
+		if (state == cpu_Done) {
+			b->halted = 1;
+			fprintf(stderr, "hexbot-simavr: %s board halted (SLEEP with interrupts off)"
+				" at PC 0x%04x\n", BOARD[b->id], b->avr->pc);
+		} else if (state == cpu_Crashed || state == cpu_Stopped) {
+			flush_events(~(avr_cycle_count_t)0);
+			die(1, "%s board crashed at PC 0x%04x (byte address) after %.6f s",
+			    BOARD[b->id], pc, b->avr->cycle / (double)F_CPU);
+		}
+	}
+}
+
+static uint64_t mono_ns(void)
+{
+	struct timespec ts;
+	clock_gettime(CLOCK_MONOTONIC, &ts);
+	return (uint64_t)ts.tv_sec * 1000000000ULL + ts.tv_nsec;
+}
+
+static void on_signal(int sig)
+{
+	(void)sig;
+	stop_signal = 1;
+}
+
+/* A slice runs ahead of the wall clock: wait for it before anything of the slice shows
+ * on a pty (or in the log); say so once if the simulation falls far behind. */
+static void pace(pty_t *ir, pty_t *debug, avr_cycle_count_t now, uint64_t t0,
+		 uint64_t *max_lag)
+{
+	static int warned;
+	uint64_t sim = now * NS_PER_CYCLE, wall = mono_ns() - t0;
+	if (wall > sim && wall - sim > *max_lag)
+		*max_lag = wall - sim;
+	if (sim > wall) {
+		uint64_t at = t0 + sim;
+		struct timespec ts = { (time_t)(at / 1000000000ULL), (long)(at % 1000000000ULL) };
+		while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) == EINTR &&
+		       !stop_signal)
+			;
+	} else if (wall - sim > BEHIND_WARN_NS && !warned) {
+		warned = 1;
+		fprintf(stderr, "hexbot-simavr: warning: simulation is more than 100 ms "
+			"behind the wall clock\n");
+	}
+	pty_flush(ir, now);
+	pty_flush(debug, now);
+	pty_poll(ir, now);
+	pty_poll(debug, now);
+}
+
+static void usage_error(const char *fmt, const char *arg)
+{
+	char msg[256];
+	snprintf(msg, sizeof msg, fmt, arg);
+	die(2, "%s (try --help)", msg);
+}
+
+static long parse_int(const char *s, const char *what, long lo, long hi)
+{
+	char *end;
+	errno = 0;
+	long v = strtol(s, &end, 0);
+	if (!*s || *end || errno || v < lo || v > hi) {
+		char msg[128];
+		snprintf(msg, sizeof msg, "bad %s '%%s' (%ld..%ld)", what, lo, hi);
+		usage_error(msg, s);
+	}
+	return v;
+}
+
+static const char USAGE[] =
+	"usage: hexbot-simavr --comm COMM.elf --control CONTROL.elf [--ir-link PATH]\n"
+	"         [--debug-link PATH] [--dip N] [--switches MASK] [--seconds S]\n"
+	"         [--fast] [--ir-script IN] [--debug-script IN] [--log OUT|-] [--verbose]\n"
+	"         [--hold]\n";
+
+static void parse_args(int argc, char **argv)
+{
+	static const struct option longs[] = {
+		{ "comm", 1, 0, 'c' }, { "control", 1, 0, 'C' }, { "ir-link", 1, 0, 'i' },
+		{ "debug-link", 1, 0, 'd' }, { "dip", 1, 0, 'D' }, { "switches", 1, 0, 'w' },
+		{ "seconds", 1, 0, 's' }, { "fast", 0, 0, 'f' }, { "ir-script", 1, 0, 'I' },
+		{ "debug-script", 1, 0, 'S' }, { "log", 1, 0, 'l' }, { "verbose", 0, 0, 'v' },
+		{ "hold", 0, 0, 'H' }, { "help", 0, 0, 'h' }, { 0, 0, 0, 0 },
+	};
+	int c;
+	opterr = 0;
+	while ((c = getopt_long(argc, argv, ":", longs, NULL)) != -1) {
+		char *end;
+		switch (c) {
+		case 'c': opt.elf[COMM] = optarg; break;
+		case 'C': opt.elf[CONTROL] = optarg; break;
+		case 'i': opt.ir_link = optarg; break;
+		case 'd': opt.debug_link = optarg; break;
+		case 'D': opt.dip = (int)parse_int(optarg, "--dip", 0, 255); break;
+		case 'w': opt.switches = (int)parse_int(optarg, "--switches", 0, 63); break;
+		case 's':
+			opt.seconds = strtod(optarg, &end);
+			if (!*optarg || *end || !(opt.seconds > 0) || opt.seconds > 1e6)
+				usage_error("bad --seconds '%s'", optarg);
+			break;
+		case 'f': opt.fast = 1; break;
+		case 'I': opt.ir_script = optarg; break;
+		case 'S': opt.debug_script = optarg; break;
+		case 'l': opt.log = optarg; break;
+		case 'v': opt.verbose = 1; break;
+		case 'H': opt.hold = 1; break;
+		case 'h': fputs(USAGE, stdout); exit(0);
+		case ':': usage_error("%s needs a value", argv[optind - 1]); break;
+		default: usage_error("unknown option %s", argv[optind - 1]);
+		}
+	}
+	if (optind < argc)
+		usage_error("unexpected argument '%s'", argv[optind]);
+	if (!opt.elf[COMM] || !opt.elf[CONTROL])
+		usage_error("%s", "--comm and --control are required");
+	if (opt.fast && !(opt.seconds > 0))
+		usage_error("%s", "--fast needs --seconds");
+	if (opt.fast && (opt.ir_link || opt.debug_link))
+		usage_error("%s", "--fast has no pseudo-terminals (no --ir-link/--debug-link)");
+}
+
+int main(int argc, char **argv)
+{
+	parse_args(argc, argv);
+	avr_global_logger_set(quiet_logger);
+	signal(SIGPIPE, SIG_IGN);
+
+	board_setup(COMM);
+	board_setup(CONTROL);
+	if (opt.log) {
+		logfp = strcmp(opt.log, "-") ? fopen(opt.log, "w") : stdout;
+		if (!logfp)
+			die(2, "cannot write %s: %s", opt.log, strerror(errno));
+		if (!opt.fast)
+			setvbuf(logfp, NULL, _IOLBF, 0);	/* followable while it runs */
+	}
+	if (opt.ir_script)
+		load_script(opt.ir_script, &lines[COMM][1], IR_PC_BAUD);
+	if (opt.debug_script)
+		load_script(opt.debug_script, &lines[CONTROL][1], DEBUG_PC_BAUD);
+
+	struct sigaction sa = { .sa_handler = on_signal };
+	sigemptyset(&sa.sa_mask);
+	sigaction(SIGINT, &sa, NULL);
+	sigaction(SIGTERM, &sa, NULL);
+
+	if (!opt.fast) {
+		ir_pty.link = opt.ir_link;
+		ir_pty.in = &lines[COMM][1];
+		debug_pty.link = opt.debug_link;
+		debug_pty.in = &lines[CONTROL][1];
+		pty_open(&ir_pty);
+		pty_open(&debug_pty);
+		printf("hexbot-simavr: ir=%s debug=%s\n", ir_pty.slave, debug_pty.slave);
+		fflush(stdout);
+		/* --hold: power up once a program has opened the IR pty, so it sees the boot
+		 * from the first byte (the master reports POLLHUP while nobody has the slave) */
+		while (opt.hold && !stop_signal) {
+			struct pollfd pfd = { .fd = ir_pty.fd, .events = POLLIN };
+			if (poll(&pfd, 1, 20) >= 0 && !(pfd.revents & POLLHUP))
+				break;
+		}
+	}
+
+	avr_cycle_count_t end = opt.seconds > 0 ? (avr_cycle_count_t)(opt.seconds * F_CPU + 0.5)
+						 : ~(avr_cycle_count_t)0;
+	uint64_t t0 = mono_ns(), max_lag = 0;
+	while (!stop_signal) {
+		avr_cycle_count_t now = now_global();
+		if (now == ~(avr_cycle_count_t)0 || now >= end)
+			break;
+		step_until(now + SLICE < end ? now + SLICE : end);
+		now = now_global();
+		if (!opt.fast)
+			pace(&ir_pty, &debug_pty, now, t0, &max_lag);
+		if (logfp)
+			flush_events(now > 2 * HEARTBEAT ? now - 2 * HEARTBEAT : 0);
+	}
+	if (logfp)
+		flush_events(~(avr_cycle_count_t)0);
+
+	unsigned long overruns = 0, gated = 0, rx_off = 0;
+	for (int i = 0; i < 4; i++) {
+		overruns += lines[i / 2][i % 2].overruns;
+		gated += lines[i / 2][i % 2].gated;
+		rx_off += lines[i / 2][i % 2].rx_off + lines[i / 2][i % 2].full;
+	}
+	char lag[48] = "";
+	if (!opt.fast)
+		snprintf(lag, sizeof lag, ", most behind the wall clock %.1f ms", max_lag / 1e6);
+	fprintf(stderr, "hexbot-simavr: stopped at %.6f s: IR bytes out a side %lu, IR bytes in "
+		"while a side was selected %lu, UART overruns %lu, bytes lost with the receiver "
+		"off %lu, pty bytes dropped %lu%s\n",
+		now_global() == ~(avr_cycle_count_t)0 ? 0.0 : now_global() / (double)F_CPU,
+		ir_side_out, gated, overruns, rx_off, ir_pty.lost + debug_pty.lost, lag);
+	cleanup();
+	return 0;
+}
