@@ -25,9 +25,11 @@ demo: $(STAMP)
 firmware: $(SYSTEM) $(STAMP)
 	$(MAKE) -C firmware PYTHON=$(abspath $(PY))
 
+# Many tests wait on the wall clock (real-time fleets, simavr boots): xdist runs them side by side.
 test: $(SYSTEM) $(STAMP) firmware
 	$(VENV)/bin/lint-imports --no-logo
-	$(PY) -m pytest -q tests hexbench/conformance --ignore=tests/benchmarks
+	$(PY) -m pytest -q -n 3 tests hexbench/conformance --ignore=tests/benchmarks
+	$(PY) -m pytest -q -n 8 --pyargs hexbench.conformance --hexbench-target simavr
 
 bench: $(STAMP)
 	$(PY) -m pytest -q -s tests/benchmarks

@@ -135,7 +135,11 @@ def test_reference_localize_alone(hexbench_bench, hexbench_pc):
     hexbench_pc.ack(F.Ref, timeout_s=10)
     ack, waited, got = _ack_after(bench, hexbench_pc, F.Localize, timeout_s=60)
     assert ack.frame.raw == codec.encode_ack(F.Localize, role=b"S: ")
-    assert [r.frame.kind for r in got] == [Kind.ACK]
+    stray = b"".join(r.frame.raw for r in got[:-1])
+    if bench.virtual:  # a burst leaves whole on the transceiver it was written to
+        assert [r.frame.kind for r in got] == [Kind.ACK]
+    else:  # the thesis selects the centre while the last MSG1's last bytes are on the wire
+        assert got[-1].frame.kind is Kind.ACK and stray in (b"", b"\x06", b"\x00\x06"), stray
     waited -= SUBSTRATE_ACK_DELAY_TICKS * TICK_NS
     if bench.profile == "v2":
         baud = round(10 * 1_000_000_000 / hexbench_pc.byte_ns)

@@ -42,7 +42,7 @@ def test_matrix_and_list_forms_agree():
     ('profile = "v3"\ninitial = [[0, 0]]', "key 'profile': expected 'v2' or 'thesis-2009', got 'v3'"),
     ('initial = [[0, 0]]\ngaol = [[0, 0]]', "unknown key 'gaol' (did you mean 'goal'?)"),
     ('[[modules]]\ncell = [0, "a"]', "key 'modules[0].cell': expected a cell [x, y]"),
-    ('[[modules]]\ncell = [0, 0]\nkind = "robot"', "key 'modules[0].kind': expected 'virtual' or 'real'"),
+    ('[[modules]]\ncell = [0, 0]\nkind = "robot"', "key 'modules[0].kind': expected 'virtual', 'real' or 'firmware'"),
     ('[[modules]]\ncell = [0, 0]\nid = 300', "hardware id 1..255"),
     ('initial = [[0, 0], [1, 0]]\ngoal = [[0, 0]]', "1 goal cells for 2 modules"),
     ('initial = [[0, 0], [0, 0]]', "share cell (0,0)"),
@@ -86,3 +86,19 @@ def test_real_overrides_make_boards_on_ports():
 def test_bad_real_overrides_say_what_is_wrong(spec, needle):
     with pytest.raises(ScenarioError, match=needle):
         override(load("thesis-6"), real=[spec])
+
+
+def test_firmware_modules_in_a_scenario_and_on_the_command_line(tmp_path):
+    p = tmp_path / "fw.toml"
+    p.write_text('name = "fw"\nfixed = [0, 0]\ngoal = [[0, 0], [0, 1]]\n[[modules]]\ncell = [0, 0]\n'
+                 'kind = "firmware"\n[[modules]]\ncell = [1, 0]\n')
+    assert [m.kind for m in load(p).modules] == ["firmware", "virtual"]
+    sc = override(load("pair"), firmware=["m2"])
+    assert [m.kind for m in sc.modules] == ["virtual", "firmware"]
+    with pytest.raises(ScenarioError, match="has no module m7"):
+        override(load("pair"), firmware=["7"])
+    with pytest.raises(ScenarioError, match="already a real board"):
+        override(load("pair"), real=["2=/dev/ttyUSB0"], firmware=["2"])
+    p.write_text(p.read_text().replace('"firmware"', '"simavr"'))
+    with pytest.raises(ScenarioError, match="'virtual', 'real' or 'firmware'"):
+        load(p)
