@@ -29,6 +29,7 @@ firmware: $(SYSTEM) $(STAMP)
 test: $(SYSTEM) $(STAMP) firmware
 	$(VENV)/bin/lint-imports --no-logo
 	$(PY) -m pytest -q -n 3 tests hexbench/conformance --ignore=tests/benchmarks
+	$(PY) -m pytest -q --pyargs hexbench.conformance --hexbench-target firmware
 	$(PY) -m pytest -q -n 8 --pyargs hexbench.conformance --hexbench-target simavr
 
 bench: $(STAMP)

@@ -1,4 +1,5 @@
-"""The C firmware's constants, written from this package (one truth for Python and C).
+"""The C firmware's constants, written from this package (one truth for Python and C),
+and where its builds are.
 
 ``python -m bus.cheader`` prints ``firmware/include/hexbot_gen.h``: the function table
 (Table 3-7 and our v2 codes), the pin maps (Tables 3-3..3-5), the timing constants, the
@@ -10,12 +11,59 @@ which is how a test keeps the committed header from drifting.
 from __future__ import annotations
 
 import argparse
-import math
+import os
+import shutil
+import subprocess
 import sys
+import threading
+from pathlib import Path
 
 from . import codec, pins, rotations, timing
 from .functions import ACK_TIMEOUT, ACK_UNKNOWN, ARG_UNUSED, FUNCTIONS, Board
 from .lattice import NEIGHBOUR_OFFSET, Cell, Direction, Joint, Side, move_rule
+
+from .errors import HexbenchError
+
+#: The firmware tree (next to the packages in a checkout, or $HEXBENCH_FIRMWARE) and what
+#: ``make -C firmware`` builds there: the images, the simavr harness, the host libraries.
+FIRMWARE_DIR = Path(os.environ.get("HEXBENCH_FIRMWARE", Path(__file__).resolve().parents[1] / "firmware"))
+BUILD_DIR = FIRMWARE_DIR / "build"
+#: Profile name (module_sim.profiles) -> the tag of its builds.
+PROFILE_TAG = {"v2": "v2", "thesis-2009": "thesis"}
+_build_lock = threading.Lock()
+
+
+class FirmwareError(HexbenchError):
+    """The firmware could not be built or run."""
+
+
+def build_path(kind: str, board: str, profile: str) -> Path:
+    """``kind`` "elf" (ATmega162 image) or "lib" (host library) of ``board`` (comm,
+    control) in ``profile``."""
+    try:
+        tag = PROFILE_TAG[profile]
+    except KeyError:
+        raise FirmwareError(f"no firmware for profile {profile!r}: expected "
+                            f"{' or '.join(PROFILE_TAG)}") from None
+    return BUILD_DIR / (f"{board}-{tag}.elf" if kind == "elf" else f"libhexbot-{board}-{tag}.so")
+
+
+def ensure_built() -> None:
+    """Build the firmware if any of it is missing (``make -C firmware``)."""
+    with _build_lock:
+        wanted = [BUILD_DIR / "hexbot-simavr"] + [build_path(k, b, p) for k in ("elf", "lib")
+                                                  for b in ("comm", "control") for p in PROFILE_TAG]
+        if all(p.exists() for p in wanted):
+            return
+        if shutil.which("avr-gcc") is None:
+            raise FirmwareError("the firmware is not built and avr-gcc is not installed: install "
+                                "gcc-avr avr-libc simavr libsimavr-dev (.ci/system, or make test)")
+        r = subprocess.run(["make", "-s", "-C", str(FIRMWARE_DIR), f"PYTHON={sys.executable}"],
+                           capture_output=True, text=True)
+        if r.returncode != 0:
+            tail = (r.stderr or r.stdout).strip().splitlines()[-1:] or ["(no output)"]
+            raise FirmwareError(f"make -C {FIRMWARE_DIR} failed: {tail[0]}")
+
 
 F_CPU = 1_000_000
 TIMER0_PRESCALER = 64

@@ -25,8 +25,12 @@ PROFILES = ("v2", "thesis-2009")
 #: C firmware in simavr behind ptys (hil.firmware), bridged like a real board.
 KINDS = ("virtual", "real", "firmware")
 _TOP_KEYS = {"name", "description", "profile", "seed", "fixed", "goal", "goal_matrix", "initial",
-             "initial_matrix", "obstacles", "modules", "ir_baud", "bit_error_rate", "faults"}
-_MODULE_KEYS = {"cell", "id", "kind", "orientation", "port", "debug_port"}
+             "initial_matrix", "obstacles", "modules", "ir_baud", "bit_error_rate", "faults",
+             "program"}
+_MODULE_KEYS = {"cell", "id", "kind", "orientation", "port", "debug_port", "program"}
+#: What runs on a virtual module: the Python programs ("model") or the C firmware compiled
+#: for the host ("firmware", module_sim.firmware).
+PROGRAMS = ("model", "firmware")
 
 
 class ScenarioError(HexbenchError, ValueError):
@@ -41,6 +45,7 @@ class ModuleSpec:
     orientation: int = 0  # Yref: 60-degree steps from the global to the body frame
     port: str | None = None  # serial URL of a real module's central IR transceiver
     debug_port: str | None = None
+    program: str | None = None  # None: the scenario's
 
 
 @dataclass
@@ -57,6 +62,10 @@ class Scenario:
     ir_baud: int = 300
     bit_error_rate: float = 0.0
     faults: list[ActuatorFault] = field(default_factory=list)  # injected by the world
+    program: str = "model"  # what virtual modules run unless a module says otherwise
+
+    def program_of(self, module: ModuleSpec) -> str:
+        return module.program or self.program
 
     @property
     def initial(self) -> list[Cell]:
@@ -206,7 +215,11 @@ def _build(d: dict[str, Any], source: str, text: str) -> Scenario:
             for pk in ("port", "debug_port"):
                 if pk in m and not isinstance(m[pk], str):
                     raise _err(source, text, f"{key}.{pk}", "a serial URL string", m[pk])
-            modules.append(ModuleSpec(ident, cell, kind, orient, m.get("port"), m.get("debug_port")))
+            prog = m.get("program")
+            if prog is not None and prog not in PROGRAMS:
+                raise _err(source, text, f"{key}.program", "'model' or 'firmware'", prog)
+            modules.append(ModuleSpec(ident, cell, kind, orient, m.get("port"), m.get("debug_port"),
+                                      prog))
     for key, parse in (("initial", _cells), ("initial_matrix", _matrix)):
         if key in d:
             if modules:
@@ -270,6 +283,9 @@ def _build(d: dict[str, Any], source: str, text: str) -> Scenario:
     clash = (set(obstacles) & set(seen_cells)) | (set(obstacles) & set(goal))
     if clash:
         raise _err(source, text, "obstacles", "cells free of modules and goals", [list(c) for c in clash])
+    program = d.get("program", "model")
+    if program not in PROGRAMS:
+        raise _err(source, text, "program", "'model' or 'firmware'", program)
     ir_baud = d.get("ir_baud", 300)
     if not isinstance(ir_baud, int) or ir_baud <= 0:
         raise _err(source, text, "ir_baud", "a positive baud rate", ir_baud)
@@ -290,7 +306,8 @@ def _build(d: dict[str, Any], source: str, text: str) -> Scenario:
         faults.append(f)
     return Scenario(name=name, modules=modules, fixed=fixed, goal=goal, obstacles=obstacles,
                     profile=profile, seed=seed, description=str(d.get("description", "")),
-                    source=source, ir_baud=ir_baud, bit_error_rate=float(ber), faults=faults)
+                    source=source, ir_baud=ir_baud, bit_error_rate=float(ber), faults=faults,
+                    program=program)
 
 
 def parse_real(spec: str) -> tuple[int, str, str | None]:
@@ -305,11 +322,12 @@ def parse_real(spec: str) -> tuple[int, str, str | None]:
 
 
 def override(sc: Scenario, *, seed: int | None = None, profile: str | None = None,
-             faults: list[str] = (), real: list[str] = (), firmware: list[str] = ()) -> Scenario:
+             faults: list[str] = (), real: list[str] = (), firmware: list[str] = (),
+             program: str | None = None) -> Scenario:
     """A copy of ``sc`` with command-line overrides; extra fault specs are checked against
     the fleet, and ``real`` specs (:func:`parse_real`) make modules real boards on ports
     (:class:`ScenarioError` names the bad one); ``firmware`` ids (``3`` or ``m3``) make
-    modules run the C firmware in simavr."""
+    modules run the C firmware in simavr; ``program`` sets what every virtual module runs."""
     import dataclasses
 
     ids = {f"m{m.id}" for m in sc.modules}
@@ -341,6 +359,11 @@ def override(sc: Scenario, *, seed: int | None = None, profile: str | None = Non
         extra.append(f)
     if profile is not None and profile not in PROFILES:
         raise ScenarioError(f"profile {profile!r}: expected one of {', '.join(PROFILES)}")
+    if program is not None and program not in PROGRAMS:
+        raise ScenarioError(f"program {program!r}: expected one of {', '.join(PROGRAMS)}")
+    if program is not None:
+        modules = [dataclasses.replace(m, program=None) for m in modules]
     return dataclasses.replace(sc, modules=modules, faults=list(sc.faults) + extra,
+                               program=program or sc.program,
                                seed=sc.seed if seed is None else seed,
                                profile=profile or sc.profile)

@@ -154,3 +154,16 @@ def compare(path: str | Path, *, links: Iterable[str] = ("pc",), scenario: str |
     cmp.finish()
     return CompareResult(path, replayed, compared, len(replay), len(expected), cmp.matched, end_ns,
                          cmp.divergence, cmp.trailing)
+
+
+def first_divergence(expected: Iterable[Envelope], got: Iterable[Envelope]) -> tuple[int, Divergence | None]:
+    """(frames compared, the first that differs) between two runs' frames, in order: link,
+    endpoints, channel, sim time and bytes."""
+    a, b = list(expected), list(got)
+    for i in range(max(len(a), len(b))):
+        x = a[i] if i < len(a) else None
+        y = b[i] if i < len(b) else None
+        if x is None or y is None or _identity(x) != _identity(y):
+            return max(len(a), len(b)), Divergence(i, x, y)
+    return len(a), None
+

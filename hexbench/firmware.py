@@ -64,7 +64,7 @@ _COMMON = [
     ("SideOffAllP", (), 1.5), ("SideOnAllN", (), 1.5), ("SideOffAllN", (), 1.5),
     ("JointOnAll", (), 1.5), ("JointOffAll", (), 1.5), ("LOn", (), 1.5), ("LOff", (), 1.5),
     ("SidePTest", (1, 2), 2.0), ("SideNTest", (1, 2), 2.0), ("JointTest", (1, 2), 2.0),
-    ("LCircle", (1, 2), 3.0), ("LColor", (1, 2), 2.0), ("LFlash1", (2, 2), 2.0),
+    ("LCircle", (1, 3), 3.0), ("LColor", (1, 2), 2.0), ("LFlash1", (2, 2), 2.0),
     ("LFlash2", (2, 2), 2.0), ("LYref", (1,), 2.0), ("LYref", (2,), 2.0), ("LYref", (0,), 2.0),
     ("LMCW", (1, 8, 4, 9), 2.0), ("LMCCW", (2, 8, 4, 9), 2.0), ("LSCW", (3, 8, 4, 9), 2.0),
     ("LSCCW", (4, 8, 4, 9), 2.0), ("CW", (3, 8, 4, 9, 1, 8, 4, 9), 2.5),
@@ -157,7 +157,7 @@ def differential(profile: str, script, seconds: float, *, module_id: int = 1, sw
 
 # -- commands ---------------------------------------------------------------------------------------
 def cmd_build(args: argparse.Namespace) -> int:
-    from hil.firmware import FIRMWARE_DIR
+    from bus.cheader import FIRMWARE_DIR
 
     return subprocess.run(["make", "-C", str(FIRMWARE_DIR)]).returncode
 

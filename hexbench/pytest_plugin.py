@@ -7,6 +7,8 @@ Options:
   pyserial URL: ``/dev/ttyUSB0``, ``socket://host:port``, a pty of ``hexbench standin``), reached
   through a :class:`hil.bridge.CentreBridge` on a private bus with the wall clock. Give the
   board's firmware with ``--hexbench-profile v2`` or ``thesis-2009``.
+* ``--hexbench-target firmware``: as ``virtual``, but the module runs the C firmware compiled
+  for the host (:mod:`module_sim.firmware`) instead of the Python programs.
 * ``--hexbench-target simavr``: the C firmware of ``firmware/`` in simavr (our ATmega162
   core), one fresh module per test, reached like a serial target through its IR pty
   (:class:`hil.firmware.FirmwareModule`); the module powers up when the test starts, so the
@@ -44,8 +46,9 @@ _fleets = itertools.count()
 def pytest_addoption(parser) -> None:
     group = parser.getgroup("hexbench")
     group.addoption("--hexbench-target", default="virtual",
-                    help="what the conformance suite talks to: 'virtual' (default), 'simavr' "
-                         "(the C firmware in simavr) or 'serial:<url>'")
+                    help="what the conformance suite talks to: 'virtual' (default), 'firmware' "
+                         "(the C firmware as the virtual module's program), 'simavr' (the C "
+                         "firmware in simavr) or 'serial:<url>'")
     group.addoption("--hexbench-profile", default="both", choices=["v2", "thesis-2009", "both"],
                     help="firmware profile of the target (default: both, for virtual targets; "
                          "a serial target needs the board's profile)")
@@ -55,10 +58,10 @@ def pytest_addoption(parser) -> None:
 
 def pytest_configure(config) -> None:
     target = config.getoption("--hexbench-target", "virtual")
-    if target in ("virtual", "simavr"):
+    if target in ("virtual", "firmware", "simavr"):
         return
     if not target.startswith("serial:") or not target[len("serial:"):]:
-        raise pytest.UsageError(f"--hexbench-target {target!r}: expected 'virtual', 'simavr' or "
+        raise pytest.UsageError(f"--hexbench-target {target!r}: expected 'virtual', 'firmware', 'simavr' or "
                                 "'serial:<url>' (e.g. serial:/dev/ttyUSB0, serial:socket://host:7000)")
     if config.getoption("--hexbench-profile") == "both":
         raise pytest.UsageError(f"--hexbench-target {target}: give the board's firmware with "
@@ -93,13 +96,14 @@ class Bench:
 
     @property
     def virtual(self) -> bool:
-        return self.target == "virtual"
+        """A virtual fleet on the virtual clock (the Python programs or the C firmware)."""
+        return self.target in ("virtual", "firmware")
 
     @property
     def fresh(self) -> bool:
         """The module powered up for this test (virtual or simavr): its boot is observable
         and what a test does to it cannot leak into the next test."""
-        return self.target in ("virtual", "simavr")
+        return self.target in ("virtual", "firmware", "simavr")
 
     @property
     def time_tolerance_ns(self) -> int:
@@ -139,13 +143,14 @@ def hexbench_bench(request, hexbench_target: str, hexbench_profile: str) -> Iter
     if hexbench_target == "simavr":
         yield from _simavr_bench(hexbench_profile, baud)
         return
-    if hexbench_target != "virtual":
+    if hexbench_target not in ("virtual", "firmware"):
         yield from _serial_bench(hexbench_target, hexbench_profile, baud)
         return
     clock = VirtualClock()
     bus = Bus(clock, f"conformance{next(_fleets)}", options=SessionOptions(isolated=True))
     try:
-        scenario = loads(f'profile = "{hexbench_profile}"\nir_baud = {baud}\n'
+        program = "firmware" if hexbench_target == "firmware" else "model"
+        scenario = loads(f'profile = "{hexbench_profile}"\nir_baud = {baud}\nprogram = "{program}"\n'
                          '[[modules]]\ncell = [0, 0]\nid = 1\n')
         fleet = Fleet(bus, scenario)
         pc = PcEndpoint(bus, baud=baud)

@@ -31,11 +31,17 @@ def add_run_arguments(p: argparse.ArgumentParser, *, with_fleet: bool) -> None:
                    help="module ID is a real board: its central IR transceiver on PORT and its "
                         "debug UART1 on DEBUG_PORT (pyserial URLs); repeatable. The world runs "
                         "a twin of it (docs/hil.md)")
+    p.add_argument("--program", choices=["model", "firmware"],
+                   help="what virtual modules run: the Python programs (model, the default) or the "
+                        "C firmware compiled for the host (docs/firmware.md)")
     p.add_argument("--firmware", action="append", default=[], metavar="ID",
                    help="module ID runs the C firmware (firmware/) in simavr, bridged like a real "
                         "board; repeatable; needs --clock wall (docs/firmware.md)")
     if with_fleet:
         p.add_argument("--record", type=Path, metavar="FILE.mcap", help="record the run to MCAP")
+        p.add_argument("--compare-model", action="store_true",
+                       help="with --program firmware --clock virtual: run the Python programs too "
+                            "and report the first frame where the two runs differ (exit 1 if any)")
         p.add_argument("--fault", action="append", default=[], metavar="SPEC",
                        help="inject an actuator fault through the world, e.g. m3.S2-:off or "
                             "m3.J4:closed (repeatable)")
@@ -51,7 +57,8 @@ def _scenario(args: argparse.Namespace):
     try:
         return override(load(args.scenario), seed=args.seed, profile=args.profile,
                         faults=getattr(args, "fault", []), real=args.real,
-                        firmware=getattr(args, "firmware", []))
+                        firmware=getattr(args, "firmware", []),
+                        program=getattr(args, "program", None))
     except ScenarioError as exc:
         raise UsageError(str(exc)) from None
 
@@ -160,6 +167,13 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
         raise UsageError(f"scenario {scenario.name!r} has real or firmware modules "
                          f"({', '.join(f'm{m.id}' for m in real)}): real hardware runs on the wall "
                          "clock; use --clock wall")
+    compare = getattr(args, "compare_model", False)
+    if compare and (scenario.program != "firmware" or args.clock != "virtual"):
+        raise UsageError("--compare-model compares a firmware run with a model run on the virtual "
+                         "clock: give --program firmware --clock virtual")
+    if compare and not args.record:
+        import tempfile
+        args.record = Path(tempfile.mkdtemp(prefix="hexbench-compare")) / "firmware.mcap"
     bus = open_bus(args)
     clock = bus.clock
     recorder = None
@@ -208,4 +222,37 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
             print(f"recorded {tally.frames} frames, {tally.messages} samples -> "
                   f"{', '.join(map(str, recorder.paths))}", flush=True)
         bus.close()
+    if compare:
+        return _compare_model(args, scenario, result.ok)
     return 0 if result.ok else 1
+
+
+def _compare_model(args: argparse.Namespace, scenario, ok: bool) -> int:
+    """The same run with the Python programs; the first frame where the two differ."""
+    import subprocess
+
+    from recordings.reader import read_frames
+
+    from .compare import describe_frame, first_divergence
+
+    model_path = args.record.with_name(args.record.stem + "-model.mcap")
+    argv = [sys.executable, "-m", "hexbench", "run", args.scenario, "--planner", args.planner,
+            "--clock", "virtual", "--program", "model", "--record", str(model_path),
+            "--timing", args.timing, "--isolated"]
+    argv += [] if args.seed is None else ["--seed", str(args.seed)]
+    argv += [] if args.profile is None else ["--profile", args.profile]
+    for f in getattr(args, "fault", []):
+        argv += ["--fault", f]
+    print("compare: the same run with the Python programs ...", flush=True)
+    model = subprocess.run(argv, capture_output=True, text=True)
+    if not model_path.exists():
+        raise UsageError(f"the model run failed: {(model.stderr or model.stdout).strip()[-300:]}")
+    total, d = first_divergence(read_frames(model_path), read_frames(args.record))
+    if d is None:
+        print(f"compare: firmware and model agree on all {total} frames (bytes and sim times); "
+              f"model run in {model_path}", flush=True)
+        return 0 if ok else 1
+    print(f"compare: first difference at frame {d.index + 1} of {total}", flush=True)
+    print(f"  model:    {describe_frame(d.expected) if d.expected else '(no more frames)'}", flush=True)
+    print(f"  firmware: {describe_frame(d.got) if d.got else '(no more frames)'}", flush=True)
+    return 1

@@ -21,44 +21,16 @@ import tempfile
 import threading
 from pathlib import Path
 
-from bus.errors import HexbenchError
+from bus.cheader import BUILD_DIR, FirmwareError, build_path, ensure_built
 
-#: Where the firmware tree is: next to the packages in a checkout, or $HEXBENCH_FIRMWARE.
-FIRMWARE_DIR = Path(os.environ.get("HEXBENCH_FIRMWARE", Path(__file__).resolve().parents[1] / "firmware"))
-BUILD_DIR = FIRMWARE_DIR / "build"
 HARNESS = BUILD_DIR / "hexbot-simavr"
-#: Profile name (module_sim.profiles) -> image suffix.
-IMAGE_PROFILE = {"v2": "v2", "thesis-2009": "thesis"}
-_build_lock = threading.Lock()
 
-
-class FirmwareError(HexbenchError):
-    """The firmware could not be built or the harness failed."""
+__all__ = ["FirmwareError", "FirmwareModule", "ensure_built", "images", "run_fast"]
 
 
 def images(profile: str) -> tuple[Path, Path]:
     """(comm, control) ELF images of ``profile``."""
-    try:
-        tag = IMAGE_PROFILE[profile]
-    except KeyError:
-        raise FirmwareError(f"no firmware for profile {profile!r}: expected "
-                            f"{' or '.join(IMAGE_PROFILE)}") from None
-    return BUILD_DIR / f"comm-{tag}.elf", BUILD_DIR / f"control-{tag}.elf"
-
-
-def ensure_built() -> None:
-    """Build the images and the harness if they are missing (``make -C firmware``)."""
-    with _build_lock:
-        wanted = [HARNESS, *(p for prof in IMAGE_PROFILE for p in images(prof))]
-        if all(p.exists() for p in wanted):
-            return
-        if shutil.which("avr-gcc") is None:
-            raise FirmwareError("the firmware is not built and avr-gcc is not installed: install "
-                                "gcc-avr avr-libc simavr libsimavr-dev (see README, setup)")
-        r = subprocess.run(["make", "-s", "-C", str(FIRMWARE_DIR)], capture_output=True, text=True)
-        if r.returncode != 0:
-            tail = (r.stderr or r.stdout).strip().splitlines()[-1:] or ["(no output)"]
-            raise FirmwareError(f"make -C {FIRMWARE_DIR} failed: {tail[0]}")
+    return build_path("elf", "comm", profile), build_path("elf", "control", profile)
 
 
 def _command(profile: str, *, dip: int, switches: int) -> list[str]:

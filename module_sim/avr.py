@@ -126,6 +126,8 @@ class Mcu:
         self._waiting_rx: Uart | None = None
         self._rx_timer: Timer | None = None
         self.halted = False
+        #: the C firmware running as this board's program (module_sim.firmware), if any
+        self.driver = None
 
     # -- ports --------------------------------------------------------------------------------
     def set_bits(self, port: str, mask: int) -> None:
@@ -199,7 +201,14 @@ class Mcu:
                 continue
             raise TypeError(f"{self.name}: program yielded {op!r}")
 
+    def firmware_port_write(self, port: str, value: int) -> None:
+        """A port write of the C program (module_sim.firmware)."""
+        self._write(port, value)
+
     def _rx_ready(self, uart: Uart) -> None:
+        if self.driver is not None:
+            self.driver.step()
+            return
         if self._waiting_rx is uart:
             self._waiting_rx = None
             if self._rx_timer is not None:

@@ -72,6 +72,12 @@ class CommBoard(Mcu):
         if self.ir_transceiver != before:
             self.mux_changed_at = self.clock.now_ns()
 
+    def firmware_port_write(self, port: str, value: int) -> None:
+        before = self.ir_transceiver
+        self._write(port, value)
+        if self.ir_transceiver != before:  # the C program's IrSel
+            self.mux_changed_at = self.clock.now_ns()
+
     def accepts_ir(self, transceiver: int, start_ns: int) -> bool:
         """A byte reaches UART1 only if the mux stayed on its transceiver for the whole byte."""
         return self.ir_transceiver == transceiver and self.mux_changed_at <= start_ns

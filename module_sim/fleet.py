@@ -23,7 +23,7 @@ class Fleet:
         self.profile = profile(profile_name or scenario.profile)
         self.world = World(bus, scenario)
         self.modules = {m.id: VirtualModule(bus, m.id, self.profile, ir_baud=scenario.ir_baud,
-                                            mux_cut=mux_cut)
+                                            mux_cut=mux_cut, program=scenario.program_of(m))
                         for m in scenario.modules if m.kind == "virtual"}
         self.twins = {m.id: VirtualModule(bus, m.id, self.profile, ir_baud=scenario.ir_baud,
                                           mux_cut=mux_cut, origin="twin")

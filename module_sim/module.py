@@ -16,6 +16,7 @@ from bus.ir import Burst, IrReceiver, IrTransmitter, cut_masks
 from bus.keys import board_endpoint, module_endpoint
 from bus.messages import Actuators
 from bus.pins import LED_JOINT, LED_NEG, LED_POS
+from bus.scenario import PROGRAMS
 from bus.transport import Bus
 
 from .avr import Mcu, Uart
@@ -29,7 +30,11 @@ class VirtualModule:
     ``"twin"`` for the world's shadow copy of a real module (:mod:`module_sim.twin`)."""
 
     def __init__(self, bus: Bus, module_id: int, profile: Profile, *, ir_baud: int = 300,
-                 mux_cut: bool = False, origin: str = "virtual") -> None:
+                 mux_cut: bool = False, origin: str = "virtual", program: str = "model") -> None:
+        if program not in PROGRAMS:
+            raise ValueError(f"program {program!r}: expected one of {', '.join(PROGRAMS)}")
+        #: "model": the Python programs; "firmware": the C programs (module_sim.firmware)
+        self.program = program
         self.bus = bus
         self.origin = origin
         #: side-IR bytes its comm board took in: light a real board beside virtual
@@ -73,6 +78,13 @@ class VirtualModule:
         bus.subscribe_json(bus.keys.switches(self.name), self._on_switches)
 
     def power_up(self) -> None:
+        if self.program == "firmware":
+            from .firmware import FirmwareDriver, Program
+
+            name = self.ctrl.profile.name
+            FirmwareDriver(self.ctrl, Program.get("control", name)).power_up()
+            FirmwareDriver(self.comm, Program.get("comm", name), lambda: self.switches).power_up()
+            return
         self.ctrl.start(self.ctrl.program())
         self.comm.start(self.comm.program())
 

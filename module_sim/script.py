@@ -71,14 +71,16 @@ def format_script(script: Script) -> str:
 
 
 def run_script(script: Script, seconds: float, *, profile: str = "v2", module_id: int = 1,
-               switches: int = 0, ir_baud: int = 300, mux_cut: bool = False) -> list[Event]:
+               switches: int = 0, ir_baud: int = 300, mux_cut: bool = False,
+               program: str = "model") -> list[Event]:
     """Power a virtual module up at time 0, play ``script`` to its centre transceiver and
     return what it did in the first ``seconds`` of sim time. ``mux_cut``: a multiplexer
     switch during a transmit burst moves the rest of it (:class:`VirtualModule`)."""
     clock = VirtualClock()
     bus = Bus(clock, f"script{id(script)}", options=SessionOptions(isolated=True))
     try:
-        module = VirtualModule(bus, module_id, get_profile(profile), ir_baud=ir_baud, mux_cut=mux_cut)
+        module = VirtualModule(bus, module_id, get_profile(profile), ir_baud=ir_baud, mux_cut=mux_cut,
+                               program=program)
         module.switches = [bool(switches >> k & 1) for k in range(6)]
         log: list[Event] = []
         _watch(module, log)

@@ -83,6 +83,11 @@ uint16_t board_ticks(void)
     return t;
 }
 
+uint8_t board_tick_reached(uint16_t target)
+{
+    return (int16_t)(board_ticks() - target) >= 0;
+}
+
 /* --- UARTs --- */
 uint8_t board_rx_ready(uint8_t uart)
 {
@@ -104,6 +109,15 @@ void board_tx_write(uint8_t uart, uint8_t byte)
         UDR0 = byte;
     else
         UDR1 = byte;
+}
+
+uint8_t board_tx_some(uint8_t uart, const uint8_t *data, uint8_t flash, uint8_t k, uint8_t len)
+{
+    while (k < len && board_tx_ready(uart)) {
+        board_tx_write(uart, flash ? pgm_read_byte(&data[k]) : data[k]);
+        k++;
+    }
+    return k;
 }
 
 void board_init(const uint8_t outputs[5])

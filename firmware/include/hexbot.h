@@ -37,10 +37,14 @@ enum { UART0, UART1 };
 
 void board_init(const uint8_t outputs[5]);
 uint16_t board_ticks(void);                  /* Timer0 overflows since power-up */
+uint8_t board_tick_reached(uint16_t target); /* board_ticks() has reached target (mod 2^16) */
 uint8_t board_rx_ready(uint8_t uart);        /* RXC: a received byte is waiting */
 uint8_t board_rx_read(uint8_t uart);
 uint8_t board_tx_ready(uint8_t uart);        /* UDRE, and nothing queued in the background */
 void board_tx_write(uint8_t uart, uint8_t byte);
+/* TransmitByte for data[k..len): hands over what the UART takes now and returns the new
+ * k; len once the last byte is in UDR (the program goes on then). `flash`: data is FW_CONST. */
+uint8_t board_tx_some(uint8_t uart, const uint8_t *data, uint8_t flash, uint8_t k, uint8_t len);
 /* Send in the background (UDRE interrupt); 0 if the queue is full. */
 uint8_t board_tx_queue(uint8_t uart, const uint8_t *data, uint8_t n);
 uint8_t board_port(uint8_t port);            /* PORTx as last written */
@@ -54,9 +58,8 @@ void program_step(void);
 /* --- coroutines --- */
 typedef struct {
     uint16_t lc; /* where to resume: a source line, 0 = start */
-    uint16_t t0; /* tick a wait started, or the tick it waits for */
-    uint16_t n;  /* ticks of that wait */
-    uint8_t k;   /* byte index of a transmission */
+    uint16_t t0; /* the tick a wait ends on */
+    uint8_t k;   /* bytes of a transmission handed over */
 } pt_t;
 
 enum { PT_WAITING = 0, PT_DONE = 1 };
@@ -71,27 +74,26 @@ enum { PT_WAITING = 0, PT_DONE = 1 };
 
 /* DelayXts(n): resume on the n-th Timer0 overflow after now. */
 #define DELAY(pt, ticks) \
-    do { (pt)->t0 = board_ticks(); (pt)->n = (ticks); \
-         PT_WAIT_UNTIL(pt, (uint16_t)(board_ticks() - (pt)->t0) >= (pt)->n); } while (0)
+    do { (pt)->t0 = (uint16_t)(board_ticks() + (ticks)); \
+         PT_WAIT_UNTIL(pt, board_tick_reached((pt)->t0)); } while (0)
 /* Wait for the overflow that makes board_ticks() == target (at once if it has passed). */
 #define WAIT_TICK(pt, target) \
-    do { (pt)->t0 = (target); PT_WAIT_UNTIL(pt, (int16_t)(board_ticks() - (pt)->t0) >= 0); } while (0)
+    do { (pt)->t0 = (target); PT_WAIT_UNTIL(pt, board_tick_reached((pt)->t0)); } while (0)
 /* ReceiveByte */
 #define RX(pt, uart, dst) \
     do { PT_WAIT_UNTIL(pt, board_rx_ready(uart)); (dst) = board_rx_read(uart); } while (0)
 /* ReceiveByteTL(n): the byte, or ACK_TIMEOUT ('~') on the n-th overflow. */
 #define RX_TL(pt, uart, ticks, dst) \
-    do { (pt)->t0 = board_ticks(); (pt)->n = (ticks); \
-         PT_WAIT_UNTIL(pt, board_rx_ready(uart) || (uint16_t)(board_ticks() - (pt)->t0) >= (pt)->n); \
+    do { (pt)->t0 = (uint16_t)(board_ticks() + (ticks)); \
+         PT_WAIT_UNTIL(pt, board_rx_ready(uart) || board_tick_reached((pt)->t0)); \
          (dst) = board_rx_ready(uart) ? board_rx_read(uart) : ACK_TIMEOUT; } while (0)
 /* TransmitByte for each byte of a RAM buffer: done when the last one is in UDR. */
-#define TX(pt, uart, data, len) \
-    do { for ((pt)->k = 0; (pt)->k < (len); (pt)->k++) { \
-         PT_WAIT_UNTIL(pt, board_tx_ready(uart)); board_tx_write(uart, (data)[(pt)->k]); } } while (0)
+#define TX_BYTES(pt, uart, data, flash, len) \
+    do { (pt)->k = 0; PT_WAIT_UNTIL(pt, ((pt)->k = board_tx_some(uart, (const uint8_t *)(data), \
+                                                                 flash, (pt)->k, len)) >= (len)); } while (0)
+#define TX(pt, uart, data, len) TX_BYTES(pt, uart, data, 0, len)
 /* The same for a FW_CONST string. */
-#define TX_P(pt, uart, str) \
-    do { for ((pt)->k = 0; (pt)->k < sizeof(str) - 1; (pt)->k++) { \
-         PT_WAIT_UNTIL(pt, board_tx_ready(uart)); board_tx_write(uart, fw_byte(&(str)[(pt)->k])); } } while (0)
+#define TX_P(pt, uart, str) TX_BYTES(pt, uart, str, 1, sizeof(str) - 1)
 
 /* --- shared helpers (common.c) --- */
 enum { BOARD_NONE = 0, BOARD_CONTROL = 1, BOARD_COMM = 2 };

@@ -14,15 +14,17 @@ static const uint8_t NEG_PORT[7] FW_CONST = LED_NEG_PORTS;
 static const uint8_t NEG_MASK[7] FW_CONST = LED_NEG_MASKS;
 static const uint8_t JNT_PORT[7] FW_CONST = LED_JOINT_PORTS;
 static const uint8_t JNT_MASK[7] FW_CONST = LED_JOINT_MASKS;
+static const uint8_t SEL_BITS[7] FW_CONST = IR_SEL_BITS;
+#if HEXBOT_V2
 static const uint8_t SW_PORT[7] FW_CONST = OPTICAL_SWITCH_PORTS;
 static const uint8_t SW_MASK[7] FW_CONST = OPTICAL_SWITCH_MASKS;
-static const uint8_t SEL_BITS[7] FW_CONST = IR_SEL_BITS;
 static const int8_t NB_DX[7] FW_CONST = NEIGHBOUR_DX;
 static const int8_t NB_DY[7] FW_CONST = NEIGHBOUR_DY;
 static const int8_t CW_DX[7] FW_CONST = GOAL_CW_DX;
 static const int8_t CW_DY[7] FW_CONST = GOAL_CW_DY;
 static const int8_t CCW_DX[7] FW_CONST = GOAL_CCW_DX;
 static const int8_t CCW_DY[7] FW_CONST = GOAL_CCW_DY;
+#endif
 
 static const char S_PREAMBLE[] FW_CONST = TXT_PREAMBLE;
 static const char S_COMM_READY[] FW_CONST = TXT_COMM_READY;
@@ -102,7 +104,7 @@ static uint8_t pre(uint8_t *p)
     return n;
 }
 
-static uint8_t out_len;
+static uint8_t out_len, pre_len;
 
 /* --- LED animations --------------------------------------------------------------- */
 static pt_t pt_anim;
@@ -363,11 +365,12 @@ static uint8_t co_localize(void)
                 IrSel(loc_side);
                 for (loc_heard = 0; loc_heard < 2; loc_heard++) {
                     DELAY(pt, 5);
-                    out_len = pre(out);
+                    pre_len = out_len = pre(out);
                     out[out_len++] = BYTE_START;
                     for (uint8_t k = 0; k < 7; k++)
                         out[out_len++] = fw_byte(&THESIS_MSG1[loc_side - 2][k]);
-                    TX(pt, UART1, out, out_len);
+                    TX(pt, UART1, out, pre_len); /* two transmissions, as the thesis's two */
+                    TX(pt, UART1, out + pre_len, MSG1_LEN);
                 }
                 led(POS_PORT, POS_MASK, loc_side, 0);
                 led(NEG_PORT, NEG_MASK, loc_side, 0);
@@ -447,12 +450,12 @@ static uint8_t co_localize(void)
                 DELAY(pt, 2); /* more than the 0.38 ms multiplexer gap; the listener is there */
                 {
                     uint8_t g = fold(loc_side + Yref), facing = fold(g + 3);
-                    out_len = pre(out);
+                    pre_len = out_len = pre(out);
                     out[out_len++] = BYTE_START;
                     msg1_digits(&out[out_len], X + fw_sbyte(&NB_DX[g]), Y + fw_sbyte(&NB_DY[g]), facing);
-                    out_len += 7;
                 }
-                TX(pt, UART1, out, out_len);
+                TX(pt, UART1, out, pre_len); /* preamble and role, then '*' MSG1 */
+                TX(pt, UART1, out + pre_len, MSG1_LEN);
             }
         }
         WAIT_TICK(pt, (uint16_t)(loc_t0 + 36u * SLOT));

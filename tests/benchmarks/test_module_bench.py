@@ -34,8 +34,9 @@ SIZES = [int(s) for s in os.environ.get("HEXBENCH_BENCH_SIZES", "1,100,1000").sp
 MAX_IDS = 255  # hardware ids 1..255 (the DIP switches)
 
 
-def _fleets(n: int, tag: str):
-    """``n`` modules as ceil(n / 255) fleets on one virtual clock and one zenoh session."""
+def _fleets(n: int, tag: str, program: str = "model"):
+    """``n`` modules as ceil(n / 255) fleets on one virtual clock and one zenoh session;
+    ``program``: the Python programs ("model") or the C firmware ("firmware")."""
     clock = VirtualClock()
     session = open_session(SessionOptions(isolated=True))
     k = math.ceil(n / MAX_IDS)
@@ -46,7 +47,7 @@ def _fleets(n: int, tag: str):
         side = int(size ** 0.5) + 1
         cells = "\n".join(f"[[modules]]\ncell = [{j % side}, {j // side}]\nid = {j + 1}"
                           for j in range(size))
-        fleets.append(Fleet(bus, loads(f'profile = "v2"\nfixed = [0, 0]\n{cells}\n')))
+        fleets.append(Fleet(bus, loads(f'profile = "v2"\nprogram = "{program}"\nfixed = [0, 0]\n{cells}\n')))
         buses.append(bus)
         pcs.append(PcEndpoint(bus))
     return clock, session, buses, fleets, pcs

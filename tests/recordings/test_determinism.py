@@ -3,6 +3,8 @@ at the same sim times — checked on the MCAP files of two virtual runs."""
 
 from __future__ import annotations
 
+import pytest
+
 from recordings.reader import iter_samples, read_frames
 
 
@@ -53,11 +55,14 @@ def _digest(path) -> tuple[int, int, str]:
     return len(rows), frames, hashlib.sha256(repr(rows).encode()).hexdigest()
 
 
-def test_thesis_12_gives_the_golden_frames(tmp_path, capsys):
+@pytest.mark.parametrize("program", ["model", "firmware"])
+def test_thesis_12_gives_the_golden_frames(tmp_path, capsys, program):
+    """The Python programs and the C firmware (compiled for the host) make the same recording:
+    every frame, and every other sample at the same sim time."""
     from hexbench.cli import main
 
     out = tmp_path / "x.mcap"
     assert main(["run", "thesis-12", "--planner", "complete", "--clock", "virtual",
-                 "--record", str(out)]) == 0
+                 "--program", program, "--record", str(out)]) == 0
     capsys.readouterr()
     assert _digest(out) == GOLDEN_THESIS_12
