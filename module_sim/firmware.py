@@ -17,6 +17,7 @@ each driver keeps a copy of and the step swaps in and out (firmware/host/board_h
 from __future__ import annotations
 
 import ctypes
+import struct
 from typing import Callable
 
 from bus.cheader import FirmwareError, build_path, ensure_built
@@ -25,6 +26,7 @@ from bus.pins import OPTICAL_SWITCH, PORTS
 from .avr import Mcu
 
 _EV_PORT, _EV_TX = 1, 2
+_EVENT = struct.Struct("<BBBBHH")  # hexbot_event_t
 _MAX_EVENTS, _MAX_BYTES = 256, 1024
 
 
@@ -57,11 +59,15 @@ class Program:
         except OSError as exc:
             raise FirmwareError(f"cannot load the firmware's host library {path}: {exc}") from None
         lib.hexbot_state_size.restype = ctypes.c_size_t
-        lib.hexbot_step.argtypes = [ctypes.c_void_p, ctypes.c_uint64, ctypes.c_uint64,
-                                    ctypes.c_uint32, ctypes.c_uint32, ctypes.c_void_p]
-        lib.hexbot_step.restype = None
-        self.step = lib.hexbot_step
+        lib.hexbot_setup.argtypes = [ctypes.c_void_p, ctypes.c_uint64, ctypes.c_uint32,
+                                     ctypes.c_uint32]
+        lib.hexbot_set_pins.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
+        lib.hexbot_step.argtypes = [ctypes.c_void_p, ctypes.c_uint64]
+        for f in (lib.hexbot_setup, lib.hexbot_set_pins, lib.hexbot_step):
+            f.restype = None
+        self.setup, self.set_pins, self.step = lib.hexbot_setup, lib.hexbot_set_pins, lib.hexbot_step
         self.io = _Io.in_dll(lib, "hexbot_io")
+        self.events = memoryview(self.io.events).cast("B")  # 8 bytes an event
         self.size = lib.hexbot_state_size()
         self.power_on = ctypes.create_string_buffer(self.size)
         lib.hexbot_state_init(self.power_on)  # before any step: the image at power-up
@@ -86,53 +92,79 @@ class FirmwareDriver:
         self.state = ctypes.create_string_buffer(program.power_on.raw, program.size)
         self._uarts = (mcu.uart0, mcu.uart1)
         self._pins = (ctypes.c_uint8 * 5)()
+        self._switches: list[bool] | None = None
+        self._pin_in: dict[str, int] | None = None
+        self._state = ctypes.addressof(self.state)
         self._timer = None
+        self._wake_at = 0
         self.steps = 0
 
     def power_up(self) -> None:
-        self.mcu._boot_ns = self.mcu.clock.now_ns()
-        self.mcu.driver = self
+        mcu = self.mcu
+        mcu._boot_ns = mcu.clock.now_ns()
+        mcu.driver = self
+        self.program.setup(self._state, mcu._boot_ns, self._uarts[0].byte_ns, self._uarts[1].byte_ns)
         self.step()
+
+    def _input_pins(self) -> None:
+        """Hand the program its input pins when they changed (DIP and optical switches).
+        The module replaces its switch list when the world says something changed."""
+        switches = self.switches() if self.switches is not None else None
+        pin_in = self.mcu.pin_in
+        if switches is self._switches and pin_in == self._pin_in:
+            return
+        self._switches, self._pin_in = switches, dict(pin_in)
+        pins = self._pins
+        for k, letter in enumerate(PORTS):
+            pins[k] = pin_in[letter]
+        for side, present in enumerate(switches or (), start=1):
+            if present:
+                pin = OPTICAL_SWITCH[side]
+                pins[PORTS.index(pin.port)] |= pin.mask
+        self.program.set_pins(self._state, pins)
 
     def step(self) -> None:
         """Run the program until it waits; replay what it did; ask to be woken."""
         mcu, prog = self.mcu, self.program
         if mcu.halted:
             return
-        if self._timer is not None:
-            self._timer.cancel()
-            self._timer = None
         io = prog.io
-        for u, uart in enumerate(self._uarts):
-            waiting = uart._rx
-            n = min(len(waiting), 4)
+        uart0, uart1 = self._uarts
+        rx0, rx1 = uart0._rx, uart1._rx
+        if rx0:
+            io.rx_n[0] = n = min(len(rx0), 4)
             for k in range(n):
-                io.rx[u][k] = waiting[k]
-            io.rx_n[u] = n
-        pins = self._pins
-        for k, letter in enumerate(PORTS):
-            pins[k] = mcu.pin_in[letter]
-        if self.switches is not None:
-            for side, present in enumerate(self.switches(), start=1):
-                pin = OPTICAL_SWITCH[side]
-                if present:
-                    pins[PORTS.index(pin.port)] |= pin.mask
-        now = mcu.clock.now_ns()
-        prog.step(self.state, now, mcu._boot_ns, self._uarts[0].byte_ns, self._uarts[1].byte_ns,
-                  pins)
+                io.rx[0][k] = rx0[k]
+        if rx1:
+            io.rx_n[1] = n = min(len(rx1), 4)
+            for k in range(n):
+                io.rx[1][k] = rx1[k]
+        self._input_pins()
+        prog.step(self._state, mcu.clock.now_ns())
         self.steps += 1
-        for u, uart in enumerate(self._uarts):
-            for _ in range(io.rx_used[u]):
-                uart._rx.popleft()
-        events, data, starts = io.events, io.bytes, io.starts
-        for i in range(io.n_events):
-            e = events[i]
-            if e.kind == _EV_PORT:
-                mcu.firmware_port_write(PORTS[e.a], e.n)
-            else:
-                hook = self._uarts[e.a].on_tx
-                if hook is not None:
-                    lo, hi = e.offset, e.offset + e.n
-                    hook(bytes(data[lo:hi]), list(starts[lo:hi]))
-        if io.wake:
-            self._timer = mcu.clock.call_at(io.wake, self.step)
+        used = io.rx_used
+        for _ in range(used[0]):
+            rx0.popleft()
+        for _ in range(used[1]):
+            rx1.popleft()
+        n = io.n_events
+        if n:
+            for kind, a, v, _, offset, _ in _EVENT.iter_unpack(prog.events[:8 * n]):
+                if kind == _EV_PORT:
+                    mcu.firmware_port_write(PORTS[a], v)
+                else:
+                    hook = self._uarts[a].on_tx
+                    if hook is not None:
+                        hi = offset + v
+                        hook(bytes(io.bytes[offset:hi]), io.starts[offset:hi])
+        wake = io.wake
+        if wake != self._wake_at:  # a new wake-up time (an unchanged one stays booked)
+            if self._timer is not None:
+                self._timer.cancel()
+            self._timer = mcu.clock.call_at(wake, self._woken) if wake else None
+            self._wake_at = wake
+
+    def _woken(self) -> None:
+        self._timer = None
+        self._wake_at = 0
+        self.step()

@@ -18,7 +18,6 @@ static uint64_t udr_free_at[2], line_free_at[2];
 static uint8_t tx_pending[2];
 static uint64_t tx_done_at[2];
 static uint8_t port[5], pin[5];
-static uint8_t started;
 
 /* --- per step (shared, outside hexbot_state) --------------------------------------- */
 extern hexbot_io_t hexbot_io;
@@ -161,22 +160,35 @@ void hexbot_state_init(void *state)
     memcpy(state, __start_hexbot_state, hexbot_state_size());
 }
 
-void hexbot_step(void *state, uint64_t t, uint64_t boot_ns, uint32_t byte_ns0, uint32_t byte_ns1,
-                 const uint8_t pins[5])
+/* Power-up: the board's clock started at boot_ns, its UARTs' byte times. */
+void hexbot_setup(void *state, uint64_t boot_ns, uint32_t byte_ns0, uint32_t byte_ns1)
+{
+    memcpy(__start_hexbot_state, state, hexbot_state_size());
+    boot = boot_ns;
+    byte_ns[0] = byte_ns0;
+    byte_ns[1] = byte_ns1;
+    memcpy(state, __start_hexbot_state, hexbot_state_size());
+}
+
+/* The levels on the input pins (DIP switches, optical switches), until changed. */
+void hexbot_set_pins(void *state, const uint8_t pins[5])
+{
+    memcpy(__start_hexbot_state, state, hexbot_state_size());
+    memcpy(pin, pins, sizeof pin);
+    memcpy(state, __start_hexbot_state, hexbot_state_size());
+}
+
+/* One step at sim time t with hexbot_io.rx_n bytes waiting; the events and the wake-up are
+ * in hexbot_io after it. */
+void hexbot_step(void *state, uint64_t t)
 {
     memcpy(__start_hexbot_state, state, hexbot_state_size());
     now = t;
-    if (!started) {
-        started = 1;
-        boot = boot_ns;
-        byte_ns[0] = byte_ns0;
-        byte_ns[1] = byte_ns1;
-    }
-    memcpy(pin, pins, sizeof pin);
     hexbot_io.wake = 0;
     hexbot_io.n_events = 0;
     hexbot_io.n_bytes = 0;
     hexbot_io.rx_used[0] = hexbot_io.rx_used[1] = 0;
     program_step();
     memcpy(state, __start_hexbot_state, hexbot_state_size());
+    hexbot_io.rx_n[0] = hexbot_io.rx_n[1] = 0; /* the simulator sets them when bytes wait */
 }

@@ -37,7 +37,8 @@ extern hexbot_io_t hexbot_io;
 
 size_t hexbot_state_size(void);
 void hexbot_state_init(void *state);
-void hexbot_step(void *state, uint64_t now, uint64_t boot, uint32_t byte_ns0, uint32_t byte_ns1,
-                 const uint8_t pins[5]);
+void hexbot_setup(void *state, uint64_t boot, uint32_t byte_ns0, uint32_t byte_ns1);
+void hexbot_set_pins(void *state, const uint8_t pins[5]);
+void hexbot_step(void *state, uint64_t now);
 
 #endif
