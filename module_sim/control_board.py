@@ -6,6 +6,8 @@ on UART0 and prints to a PC terminal on UART1 (the debug link).
 
 from __future__ import annotations
 
+from collections import deque
+
 from bus import codec, rotations
 from bus.clock import Clock
 from bus.functions import FUNCTIONS, Board
@@ -41,7 +43,9 @@ class ControlBoard(Mcu):
         self.pin_in[DIP_PORT] = dip & 0xFF
         self.uart0 = Uart(self, "uart0", Baud.UART0)
         self.uart1 = Uart(self, "uart1", Baud.DEBUG)
-        self.executed: list[int] = []  # codes run, for tests and the world
+        #: the last codes run (bounded: a long run's memory stays flat) and how many in all
+        self.executed: deque[int] = deque(maxlen=1000)
+        self.executed_total = 0
         # v2 actuator reports: sent once the board listens (not during the boot's joint
         # test, whose report would delay the banners and the handshake), from a transmit
         # buffer the UDRE interrupt empties, so the program never waits for them
@@ -198,6 +202,7 @@ class ControlBoard(Mcu):
         if fn.board is not Board.CONTROL:
             return  # the firmware's if-chain simply matches nothing
         self.executed.append(code)
+        self.executed_total += 1
         result = getattr(self, fn.name)(*args[:len(fn.args)])
         if result is not None:
             yield from result

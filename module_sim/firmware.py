@@ -92,8 +92,6 @@ class FirmwareDriver:
         self.state = ctypes.create_string_buffer(program.power_on.raw, program.size)
         self._uarts = (mcu.uart0, mcu.uart1)
         self._pins = (ctypes.c_uint8 * 5)()
-        self._switches: list[bool] | None = None
-        self._pin_in: dict[str, int] | None = None
         self._state = ctypes.addressof(self.state)
         self._timer = None
         self._wake_at = 0
@@ -104,20 +102,17 @@ class FirmwareDriver:
         mcu._boot_ns = mcu.clock.now_ns()
         mcu.driver = self
         self.program.setup(self._state, mcu._boot_ns, self._uarts[0].byte_ns, self._uarts[1].byte_ns)
+        self.refresh_pins()
         self.step()
 
-    def _input_pins(self) -> None:
-        """Hand the program its input pins when they changed (DIP and optical switches).
-        The module replaces its switch list when the world says something changed."""
-        switches = self.switches() if self.switches is not None else None
+    def refresh_pins(self) -> None:
+        """Hand the program its input pins (DIP switches, optical switches): at power-up and
+        whenever the module's switches change (VirtualModule calls it)."""
         pin_in = self.mcu.pin_in
-        if switches is self._switches and pin_in == self._pin_in:
-            return
-        self._switches, self._pin_in = switches, dict(pin_in)
         pins = self._pins
         for k, letter in enumerate(PORTS):
             pins[k] = pin_in[letter]
-        for side, present in enumerate(switches or (), start=1):
+        for side, present in enumerate(self.switches() if self.switches is not None else (), start=1):
             if present:
                 pin = OPTICAL_SWITCH[side]
                 pins[PORTS.index(pin.port)] |= pin.mask
@@ -139,7 +134,6 @@ class FirmwareDriver:
             io.rx_n[1] = n = min(len(rx1), 4)
             for k in range(n):
                 io.rx[1][k] = rx1[k]
-        self._input_pins()
         prog.step(self._state, mcu.clock.now_ns())
         self.steps += 1
         used = io.rx_used

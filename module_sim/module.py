@@ -184,6 +184,8 @@ class VirtualModule:
 
     def _on_switches(self, key: str, d: dict) -> None:
         self.switches = [bool(v) for v in d["present"]]
+        if self.comm.driver is not None:  # the C firmware reads them on its pins
+            self.comm.driver.refresh_pins()
 
     # -- state out -------------------------------------------------------------------------------
     def _overrun(self, board: Mcu, uart: Uart) -> Callable[[int], None]:

@@ -7,8 +7,9 @@ with timeouts on the run's clock. Real and virtual modules look the same from he
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Iterator
 
 from bus.codec import Frame, Kind, Link, encode_command
 from bus.framer import Framer
@@ -30,6 +31,46 @@ class Received:
     t_last_ns: int
 
 
+class History:
+    """The frames received, the last ``maxlen`` of them kept (a ring buffer, so a long run's
+    memory stays flat). Indices count every frame since the start: ``len()`` is the total, and
+    ``h[i]``, ``h[i:]`` and ``h.index(r)`` use those numbers; frames older than the last
+    ``maxlen`` are gone (an index into them is an IndexError, a slice starts after them)."""
+
+    def __init__(self, maxlen: int = 10_000) -> None:
+        self.maxlen = maxlen
+        self._items: deque[Received] = deque(maxlen=maxlen)
+        self._dropped = 0
+
+    def append(self, r: Received) -> None:
+        if len(self._items) == self.maxlen:
+            self._dropped += 1
+        self._items.append(r)
+
+    def clear(self) -> None:
+        self._items.clear()
+        self._dropped = 0
+
+    def __len__(self) -> int:
+        return self._dropped + len(self._items)
+
+    def __iter__(self) -> Iterator[Received]:
+        return iter(self._items)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            start, stop, step = i.indices(len(self))
+            return [self._items[k - self._dropped] for k in range(max(start, self._dropped), stop, step)]
+        if i < 0:
+            i += len(self)
+        if not self._dropped <= i < len(self):
+            raise IndexError(f"frame {i}: {'not received yet' if i >= len(self) else f'older than the last {self.maxlen} kept'}")
+        return self._items[i - self._dropped]
+
+    def index(self, r: Received) -> int:
+        return self._items.index(r) + self._dropped
+
+
 class PcEndpoint:
     def __init__(self, bus: Bus, *, baud: int = 300, name: str = PC) -> None:
         self.bus = bus
@@ -39,7 +80,7 @@ class PcEndpoint:
         self._framer = Framer(Link.CENTRE)
         self._rx = IrReceiver(bus.clock, self._on_byte)
         self._line_free_at = 0
-        self.received: list[Received] = []
+        self.received = History()
         self.listeners: list[Callable[[Received], None]] = []
         bus.subscribe(bus.keys.ir_rx(name), self._rx.on_message)
 
@@ -135,4 +176,4 @@ def _predicate(match: Callable[[Frame], bool] | str | None, fields: dict) -> Cal
     return lambda f: base(f) and all(f.view.get(k) == v for k, v in fields.items())
 
 
-__all__ = ["ExpectTimeout", "PcEndpoint", "Received"]
+__all__ = ["ExpectTimeout", "History", "PcEndpoint", "Received"]

@@ -33,9 +33,9 @@ def _threads() -> int:
     return len(os.listdir("/proc/self/task"))
 
 
+@pytest.mark.parametrize("program", ["firmware", "model"])  # side by side at each size
 @pytest.mark.parametrize("record", [False, True], ids=["recording-off", "recording-on"])
 @pytest.mark.parametrize("n", SIZES)
-@pytest.mark.parametrize("program", ["model", "firmware"])
 def test_fleet_scale(n, record, program, tmp_path):
     clock, session, buses, fleets, pcs = _fleets(n, ("r" if record else "s") + program[0], program)
     recorders = []

@@ -84,7 +84,7 @@ def test_idle_and_busy(n):
         busy_s = (clock.now_ns() - start_ns) / NS_PER_S
         rate_busy = n * busy_s / busy_wall
         rate_cpu = n * busy_s / busy_cpu
-        executed = sum(len(m.ctrl.executed) for f in fleets for m in f.modules.values())
+        executed = sum(m.ctrl.executed_total for f in fleets for m in f.modules.values())
         print(f"\n[module bench] n={n} ({len(fleets)} fleet(s)): boot {boot_wall:.2f} s wall for 9 s sim; "
               f"(a) idle {rate_idle:,.0f} module-s/s (target >= 100,000); "
               f"(b) busy {rate_busy:,.0f} module-s/s ({rate_cpu:,.0f} per CPU s) over {busy_s:.1f} s sim, "
