@@ -1,6 +1,7 @@
 """Firmware modules as fleet members: the C programs in simavr, bridged like real boards
-(``hexbench run --firmware ID``), with twins in the world. Both runs start together and
-each test waits for its own (about 45 s of wall clock)."""
+(``hexbench run --firmware ID``), with twins in the world; and the C programs compiled for the
+host as every virtual module's program, on the wall clock. The runs start together and each
+test waits for its own (about 45 s of wall clock)."""
 
 from __future__ import annotations
 
@@ -24,6 +25,8 @@ RUNS = {
     "reference": ["pair", "--planner", f"script:{ROOT}/docs/scripts/pair-rotate.txt", "--firmware", "1"],
     # the mobile module is the firmware: it moves, its ACT reports drive its body
     "mobile": ["pair", "--planner", f"script:{ROOT}/docs/scripts/pair-rotate-real.txt", "--firmware", "2"],
+    # every virtual module runs the C firmware compiled for the host, on the wall clock
+    "host": ["pair", "--planner", f"script:{ROOT}/docs/scripts/pair-rotate.txt", "--program", "firmware"],
 }
 
 
@@ -78,3 +81,11 @@ def test_firmware_mobile_module_moves_by_its_own_reports(runs):
     acts = [d for t, d in recs if t == "frame/debug/m2.ctrl" and d["kind"] == "actuators"]
     assert Counter(d["origin"] for d in acts)["serial"] == Counter(d["origin"] for d in acts)["twin"] > 0
     assert not [d for t, d in recs if t.startswith("event/") and d["kind"] == "twin-diverged"]
+
+
+def test_host_firmware_on_the_wall_clock(runs):
+    code, out, recs = runs("host")
+    assert code == 0, out
+    assert "the world is at the goal" in out and "script finished" in out
+    positions = [d for t, d in recs if t == "frame/centre/m2.comm" and d["kind"] == "position"]
+    assert [(p["view"]["x"], p["view"]["y"]) for p in positions] == [(1, 0), (0, 1)]
