@@ -78,6 +78,14 @@ class Switches(Record):
     present: list[bool]  # body sides 1..6
     sim_time_ns: int
 
+    @staticmethod
+    def present_of(d: object) -> list[bool]:
+        """The six switches of a sample's decoded JSON; ValueError if it is not one."""
+        p = d.get("present") if isinstance(d, dict) else None
+        if not isinstance(p, list) or len(p) != 6 or not all(v in (True, False, 0, 1) for v in p):
+            raise ValueError(f"switches: 'present' must be six booleans, not {p!r}"[:200])
+        return [bool(v) for v in p]
+
 
 @dataclass
 class WorldEvent(Record):

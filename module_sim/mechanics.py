@@ -77,11 +77,16 @@ class Mechanics:
             self._feed(fault.module, self.bus.clock.now_ns(), *self._commanded[fault.module])
 
     def _on_inject(self, key: str, payload: bytes) -> None:
-        spec = json.loads(payload).get("fault", "")
+        """``{"fault": "m3.S2-:off"}``; anything else raises (a ``bad-sample`` event when the
+        sample came from another process)."""
+        d = json.loads(payload)
+        spec = d.get("fault") if isinstance(d, dict) else None
+        if not isinstance(spec, str):
+            raise ValueError(f"an injection is {{\"fault\": \"<spec>\"}}, not {payload[:80]!r}")
         try:
             self.inject(ActuatorFault.parse(spec))
-        except (ValueError, KeyError) as exc:
-            self.bus.event("world", "bad-injection", detail=str(exc), spec=spec)
+        except KeyError as exc:  # a module this world does not hold
+            raise ValueError(str(exc)) from None
 
     # -- actuators in --------------------------------------------------------------------------
     def _on_actuators(self, key: str, payload: bytes) -> None:

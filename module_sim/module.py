@@ -14,7 +14,7 @@ from bus.codec import Link
 from bus.framer import Framer
 from bus.ir import Burst, IrReceiver, IrTransmitter, cut_masks
 from bus.keys import board_endpoint, module_endpoint
-from bus.messages import Actuators
+from bus.messages import Actuators, Switches
 from bus.pins import LED_JOINT, LED_NEG, LED_POS
 from bus.scenario import PROGRAMS
 from bus.transport import Bus
@@ -183,7 +183,7 @@ class VirtualModule:
             self.comm.uart1.receive(byte)
 
     def _on_switches(self, key: str, d: dict) -> None:
-        self.switches = [bool(v) for v in d["present"]]
+        self.switches = Switches.present_of(d)
         if self.comm.driver is not None:  # the C firmware reads them on its pins
             self.comm.driver.refresh_pins()
 

@@ -57,6 +57,48 @@ def test_tls_lets_in_who_has_the_ca_and_no_one_else(tmp_path):
         server.close()
 
 
+def _mtls(d, conf: dict[str, str]) -> dict[str, str]:
+    """Mutual TLS: the router asks every participant for a certificate signed by the CA."""
+    run = lambda *a: subprocess.run(["openssl", *a], cwd=d, check=True, capture_output=True)  # noqa: E731
+    run("req", "-newkey", "rsa:2048", "-nodes", "-keyout", "client.key", "-out", "client.csr",
+        "-subj", "/CN=hexbench participant")
+    (d / "client.cnf").write_text("extendedKeyUsage=clientAuth\n")
+    run("x509", "-req", "-in", "client.csr", "-CA", "ca.crt", "-CAkey", "ca.key", "-CAcreateserial",
+        "-out", "client.crt", "-days", "2", "-extfile", "client.cnf")
+    server, client = d / "mserver.json5", d / "mclient.json5"
+    server.write_text('{ transport: { link: { tls: { listen_private_key: "%s", listen_certificate: "%s", '
+                      'root_ca_certificate: "%s", enable_mtls: true } } } }'
+                      % (d / "server.key", d / "server.crt", d / "ca.crt"))
+    client.write_text('{ transport: { link: { tls: { root_ca_certificate: "%s", enable_mtls: true, '
+                      'connect_private_key: "%s", connect_certificate: "%s" } } } }'
+                      % (d / "ca.crt", d / "client.key", d / "client.crt"))
+    return {"server": str(server), "client": str(client), "ca_only": conf["client"]}
+
+
+def test_mutual_tls_lets_in_only_participants_with_a_certificate(tmp_path):
+    conf = _mtls(tmp_path, _certs(tmp_path))
+    port = 21000 + os.getpid() % 1000
+    endpoint = f"tls/localhost:{port}"
+    fleet = "mtls"
+    server = Bus(WallClock(), fleet, options=SessionOptions(listen=[endpoint], config=conf["server"]))
+    got: list[bytes] = []
+    server.subscribe(f"hexbot/{fleet}/**", lambda k, p: got.append(p))
+    client = Bus(WallClock(), fleet, options=SessionOptions(mode="client", connect=[endpoint],
+                                                            config=conf["client"]))
+    try:
+        assert client.wait_remote(f"hexbot/{fleet}/world/sync", timeout_s=10)
+        client.put(f"hexbot/{fleet}/world/sync", b"{}")
+        server.clock.run(until=lambda: got, timeout_s=10)
+        assert got == [b"{}"]
+        # the CA alone (server authentication) is not enough any more
+        with pytest.raises(zenoh.ZError, match="Unable to connect"):
+            Bus(WallClock(), fleet, options=SessionOptions(mode="client", connect=[endpoint],
+                                                           config=conf["ca_only"]))
+    finally:
+        client.close()
+        server.close()
+
+
 def test_an_access_control_list_keeps_a_denied_put_from_the_fleet(tmp_path):
     acl = tmp_path / "acl.json5"
     acl.write_text("""{ access_control: { enabled: true, default_permission: "allow",
