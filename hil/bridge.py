@@ -30,7 +30,7 @@ from bus.framer import Framer, Timed
 from bus.ir import Burst
 from bus.keys import PC, board_endpoint, module_endpoint
 from bus.messages import Actuators
-from bus.timing import Baud
+from bus.timing import BITS_PER_BYTE, Baud
 from bus.transport import Bus
 
 from .line import ByteTimes
@@ -124,9 +124,16 @@ class SerialBridge:
                            f"retrying every {b.first_s:g}..{b.max_s:g} s")
 
     def _on_recover(self, down_s: float, attempts: int) -> None:
-        self.event(RECOVERED, down_s=round(down_s, 3), attempts=attempts,
+        # what the line may have carried while nobody listened: its full rate for that long
+        missed = int(down_s * self.port.baud / BITS_PER_BYTE)
+        was, now = self.port.first_identity, self.port.identity
+        changed = was is not None and now != was
+        self.event(RECOVERED, down_s=round(down_s, 3), attempts=attempts, missed_up_to=missed,
+                   identity=now, identity_changed=changed,
                    message=f"serial port {self.url} is back after {down_s:.2f} s "
-                           f"({attempts} attempt(s)); bridging resumed")
+                           f"({attempts} attempt(s)); bridging resumed; up to {missed} byte(s) "
+                           "the module sent meanwhile were not heard"
+                           + (f"; it is another device now: {now} (was {was})" if changed else ""))
 
     def _on_tx_lost(self, data: bytes, reason: str) -> None:
         self.event(TX_LOST, lost=data.hex(),

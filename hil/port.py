@@ -47,6 +47,34 @@ def port_name(url: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.:+=-]", "_", name)
 
 
+def port_identity(url: str) -> str:
+    """Which device is behind ``url`` now: for a local device, the path it resolves to, its
+    device number and inode, and a USB adapter's serial number; for a
+    network URL (``socket://``, ``rfc2217://``, ``loop://``), the URL: nothing to check there."""
+    if "://" in url:
+        return url
+    try:
+        real = os.path.realpath(url)
+        st = os.stat(real)
+    except OSError as exc:
+        return f"{url}: {exc.strerror or exc}"
+    ident = f"{real} (device {os.major(st.st_rdev)}:{os.minor(st.st_rdev)}, inode {st.st_ino})"
+    serial_no = _usb_serial(real)
+    return ident + (f", USB serial {serial_no}" if serial_no else "")
+
+
+def _usb_serial(device: str) -> str | None:
+    """The serial number a USB adapter reports, from sysfs (Linux), if there is one."""
+    node = f"/sys/class/tty/{os.path.basename(device)}/device"
+    for up in ("..", "../..", "../../.."):
+        try:
+            with open(os.path.join(node, up, "serial"), encoding="ascii", errors="replace") as f:
+                return f.read().strip() or None
+        except OSError:
+            continue
+    return None
+
+
 @dataclass(frozen=True)
 class Backoff:
     """Retry delays: ``first_s``, doubling up to ``max_s``."""
@@ -69,7 +97,9 @@ class LivePort:
     * ``on_data(data, t_ns)``: bytes read, ``t_ns`` = ``now_ns()`` when they arrived;
     * ``on_fault(error)``: the port disappeared (``error`` is pyserial's/the OS's message);
       called after the last ``on_data`` of the old connection;
-    * ``on_recover(down_s, attempts)``: the port is open again;
+    * ``on_recover(down_s, attempts)``: the port is open again (``identity`` says which
+      device it is now, ``first_identity`` which it was when first opened: a replug may
+      bring back another device under the same name);
     * ``on_tx_lost(data, reason)``: bytes that could not be sent (port down or write failed).
 
     :meth:`open` opens the port the first time and raises what pyserial raises, so a typo
@@ -99,6 +129,8 @@ class LivePort:
         self.bytes_out = 0
         self.faults = 0
         self.recoveries = 0
+        self.identity: str | None = None  # port_identity() at the last open
+        self.first_identity: str | None = None
 
     @property
     def connected(self) -> bool:
@@ -111,6 +143,7 @@ class LivePort:
         is not there yet is reported through ``on_fault`` and retried like a lost one."""
         try:
             self._port = self._opener(self.url, self.baud)
+            self.identity = self.first_identity = port_identity(self.url)
         except PORT_ERRORS as exc:
             if not wait:
                 raise
@@ -181,6 +214,9 @@ class LivePort:
                 port.close()
                 return
             self._port = port
+            self.identity = port_identity(self.url)
+            if self.first_identity is None:
+                self.first_identity = self.identity
             self.recoveries += 1
             self.on_recover(time.monotonic() - down_at, attempts)
             return
@@ -201,4 +237,4 @@ class LivePort:
                 self.on_tx_lost(data, f"write to {self.url} failed: {exc}")
 
 
-__all__ = ["Backoff", "LivePort", "PORT_ERRORS", "open_port", "port_name"]
+__all__ = ["Backoff", "LivePort", "PORT_ERRORS", "open_port", "port_identity", "port_name"]

@@ -94,8 +94,10 @@ def hil_rig(tmp_path_factory) -> HilRig:
             s = StandIn.on_pty(d / f"ttyCONF{n}", profile=profile).start()
             started.append(s)
             shards.append(Shard(profile, select, s))
-        for shard in shards:
-            threading.Thread(target=shard.run, daemon=True, name=f"conformance-{shard.profile}").start()
+        threads = [threading.Thread(target=shard.run, daemon=True, name=f"conformance-{shard.profile}")
+                   for shard in shards]
+        for t in threads:
+            t.start()
         yield HilRig(bridge_standin, shards)
     finally:
         for shard in locals().get("shards", []):
@@ -103,6 +105,10 @@ def hil_rig(tmp_path_factory) -> HilRig:
                 shard.proc.kill()
         for s in started:
             s.close()
+        # a shard thread still closing its stand-in's zenoh session when the interpreter
+        # exits is torn down inside Rust and aborts the process: let them finish
+        for t in locals().get("threads", []):
+            t.join(timeout=BOOT_TIMEOUT_S)
 
 
 @pytest.fixture(scope="module")

@@ -133,6 +133,11 @@ def test_pty_closed_and_reopened_gives_fault_then_recovery_and_loses_nothing(rig
     rig.until(lambda: any(e["kind"] == RECOVERED for e in rig.events), 5, "the recovery event")
     recovered = next(e for e in rig.events if e["kind"] == RECOVERED)
     assert recovered["attempts"] >= 1 and "back" in recovered["message"]
+    # which device is behind the link now, and what may have been missed meanwhile
+    assert recovered["identity"].startswith("/dev/pts/") and "device 136:" in recovered["identity"]
+    assert "were not heard" in recovered["message"]
+    assert recovered["missed_up_to"] == int(recovered["down_s"] * 300 / 10) or \
+        abs(recovered["missed_up_to"] - recovered["down_s"] * 30) <= 1
     assert rig.bridge.connected
 
     ack = rig.pc.ack("JointOnAll", timeout_s=6)

@@ -142,3 +142,20 @@ def test_socket_dropped_gives_fault_and_recovery_and_flushes_the_partial_line(bu
     finally:
         bridge.close()
         server.close()
+
+
+def test_port_identity_tells_devices_apart(tmp_path):
+    """A link that comes back pointing elsewhere is another device (a pty number the kernel
+    hands out again cannot be told from the old one: same device number, same inode)."""
+    from hil.port import port_identity
+
+    link = tmp_path / "ttyX"
+    link.symlink_to("/dev/null")
+    first = port_identity(str(link))
+    assert first.startswith("/dev/null (device 1:3")
+    link.unlink()
+    link.symlink_to("/dev/zero")
+    assert port_identity(str(link)) != first
+    link.unlink()
+    assert "No such file" in port_identity(str(link))
+    assert port_identity("socket://lab:7000") == "socket://lab:7000"
