@@ -304,6 +304,9 @@ def _build(d: dict[str, Any], source: str, text: str) -> Scenario:
         if int(f.module[1:]) not in seen_ids:
             raise _err(source, text, f"faults[{i}]", "a fault on a module of this scenario", spec)
         faults.append(f)
+    if ir_baud != 300 and (program == "firmware" or any(m.program == "firmware" for m in modules)):
+        raise _err(source, text, "ir_baud", "300 with program 'firmware' (the C programs are built "
+                   "for 300 baud IR)", ir_baud)
     return Scenario(name=name, modules=modules, fixed=fixed, goal=goal, obstacles=obstacles,
                     profile=profile, seed=seed, description=str(d.get("description", "")),
                     source=source, ir_baud=ir_baud, bit_error_rate=float(ber), faults=faults,
@@ -363,6 +366,9 @@ def override(sc: Scenario, *, seed: int | None = None, profile: str | None = Non
         raise ScenarioError(f"program {program!r}: expected one of {', '.join(PROGRAMS)}")
     if program is not None:
         modules = [dataclasses.replace(m, program=None) for m in modules]
+    if program == "firmware" and sc.ir_baud != 300:
+        raise ScenarioError(f"--program firmware: scenario {sc.name!r} has ir_baud {sc.ir_baud}; "
+                            "the C programs are built for 300 baud IR")
     return dataclasses.replace(sc, modules=modules, faults=list(sc.faults) + extra,
                                program=program or sc.program,
                                seed=sc.seed if seed is None else seed,

@@ -18,11 +18,22 @@ from . import firmware, fleet, hil, plan, record, tools
 COMMANDS = (tools, fleet, plan, record, hil, firmware)
 
 
+def _version() -> str:
+    """The installed distribution's version (pyproject.toml)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("hexbench")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="hexbench",
         description="HexBot hardware-in-the-loop testbench: virtual modules, planner, "
                     "serial bridges, MCAP recordings and rerun replays on a zenoh bus.")
+    parser.add_argument("--version", action="version", version=f"hexbench {_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for mod in COMMANDS:
         mod.register(sub)

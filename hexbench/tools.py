@@ -1,13 +1,15 @@
-"""Subcommands over the contract itself: ``decode``, ``encode``, ``scenarios``, ``monitor``;
-and ``demo``."""
+"""Subcommands over the contract itself: ``decode``, ``encode``, ``send``, ``scenarios``,
+``monitor``; and ``demo``."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import re
+import sys
 
-from bus import Envelope, Framer, Link, UsageError, add_bus_arguments, encode_command, lookup, open_bus
+from bus import (Envelope, Framer, Link, UsageError, add_bus_arguments, encode_command, lookup,
+                 open_bus, parse)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -22,6 +24,22 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("function", help="name or code, e.g. MCW or 21")
     p.add_argument("args", nargs="*", type=int, help="argument bytes in Table 3-8 order")
     p.set_defaults(func=cmd_encode)
+
+    p = sub.add_parser("send", help="send one command to a running fleet or bridge, print the answer",
+                       description="Like cansend: join a running fleet (or a hil bridge) over the "
+                                   "bus as the PC, send one command frame on the centre channel, "
+                                   "wait for the answer and print it decoded. Exit 0 for an ACK, "
+                                   "1 for 'N' (unknown code), 3 for no answer (or '~': the control "
+                                   "board did not echo), 2 for a bad command.")
+    p.add_argument("function", help="name or code, e.g. SxP or 11")
+    p.add_argument("args", nargs="*", type=int, help="argument bytes in Table 3-8 order")
+    p.add_argument("--select", type=int, metavar="ID",
+                   help="first Select(1, ID, 0): only module ID obeys and answers")
+    p.add_argument("--timeout", type=float, default=10.0, help="seconds to wait for the answer")
+    p.add_argument("--baud", type=int, default=300, help="IR baud rate (default 300)")
+    p.add_argument("--clock", choices=["wall"], default="wall", help=argparse.SUPPRESS)
+    add_bus_arguments(p)
+    p.set_defaults(func=cmd_send)
 
     p = sub.add_parser("scenarios", help="list the built-in scenarios, or show one")
     p.add_argument("name", nargs="?", help="a built-in name or a .toml path to check and show")
@@ -60,20 +78,87 @@ def cmd_decode(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_encode(args: argparse.Namespace) -> int:
+def command_frame(function: str, values: list[int]) -> bytes:
+    """A PC command frame from a function name or code and its argument bytes; a wrong count
+    or value is a UsageError naming the function's signature (Table 3-7)."""
     try:
-        fn = lookup(args.function)
+        fn = lookup(function)
     except (KeyError, ValueError) as exc:
         raise UsageError(str(exc).strip('"')) from None
-    if len(args.args) != len(fn.args):  # no silent zeros for a forgotten argument
+    if len(values) != len(fn.args):  # no silent zeros for a forgotten argument
         sig = ", ".join(a.name for a in fn.args)
+        missing = [a.name for a in fn.args[len(values):]]
         raise UsageError(f"{fn.name} ({fn.code}) takes {len(fn.args)} argument(s), {fn.name}({sig}); "
-                         f"got {len(args.args)}")
+                         f"got {len(values)}" + (f": missing {', '.join(missing)}" if missing else ""))
     try:
-        print(encode_command(fn, *args.args).hex())
+        return encode_command(fn, *values)
     except (KeyError, ValueError) as exc:
         raise UsageError(str(exc).strip('"')) from None
+
+
+def cmd_encode(args: argparse.Namespace) -> int:
+    print(command_frame(args.function, args.args).hex())
     return 0
+
+
+#: ``hexbench send`` exit statuses (cansend's spirit: a script can tell them apart)
+SEND_ACK, SEND_UNKNOWN, SEND_TIMEOUT = 0, 1, 3
+
+
+def cmd_send(args: argparse.Namespace) -> int:
+    """Join a running fleet (or a hil bridge) as the PC, send one frame, print the answer."""
+    from bus.functions import ACK_TIMEOUT, ACK_UNKNOWN
+    from planner_svc.endpoint import ExpectTimeout, PcEndpoint
+
+    frame = command_frame(args.function, args.args)
+    if args.clock != "wall":
+        raise UsageError("send talks to a fleet in another process: only --clock wall")
+    bus = open_bus(args)
+    try:
+        pc = PcEndpoint(bus, baud=args.baud)
+        if not bus.wait_remote(bus.keys.ir_tx(pc.name), timeout_s=args.timeout):
+            print(f"hexbench send: no fleet or bridge listens on {bus.keys.root} "
+                  f"(start one, or give --connect/--fleet)", file=sys.stderr)
+            return SEND_TIMEOUT
+        if args.select is not None:
+            mark = len(pc.received)
+            pc.send_raw(command_frame("Select", [1, args.select, 0]))
+            try:
+                pc.expect("ack", since=mark, timeout_s=args.timeout, byte=60)
+            except ExpectTimeout:
+                print(f"hexbench send: module {args.select} did not answer Select within "
+                      f"{args.timeout:g} s", file=sys.stderr)
+                return SEND_TIMEOUT
+        collided: set[str] = set()
+        bus.subscribe_json(bus.keys.event("world"),
+                           lambda k, d: collided.update(d.get("sources", []))
+                           if isinstance(d, dict) and d.get("kind") == "collision"
+                           and d.get("receiver") == pc.name else None)
+        mark = len(pc.received)
+        pc.send_raw(frame)
+        print(f"sent {frame.hex()}  ({command_describe(frame)})", flush=True)
+        try:
+            ack = pc.expect("ack", since=mark, timeout_s=args.timeout)
+        except ExpectTimeout:
+            pc.flush()
+            for r in pc.received[mark:]:
+                print(f"  {r.frame.describe()}")
+            why = (f": the answers of {', '.join(sorted(collided))} collided at the PC's transceiver "
+                   "(give --select ID)" if len(collided) > 1 else "")
+            print(f"hexbench send: no ACK within {args.timeout:g} s{why}", file=sys.stderr)
+            return SEND_TIMEOUT
+        for r in pc.received[mark:]:
+            print(f"  {r.frame.describe()}")
+            if r is ack:
+                break
+        byte = ack.frame.view["byte"]
+        return SEND_UNKNOWN if byte == ACK_UNKNOWN else SEND_TIMEOUT if byte == ACK_TIMEOUT else SEND_ACK
+    finally:
+        bus.close()
+
+
+def command_describe(frame: bytes) -> str:
+    return parse(Link.PC, frame).describe()
 
 
 def cmd_scenarios(args: argparse.Namespace) -> int:

@@ -17,6 +17,7 @@ from bus.keys import board_endpoint, module_endpoint
 from bus.messages import Actuators, Switches
 from bus.pins import LED_JOINT, LED_NEG, LED_POS
 from bus.scenario import PROGRAMS
+from bus.timing import Baud
 from bus.transport import Bus
 
 from .avr import Mcu, Uart
@@ -35,6 +36,10 @@ class VirtualModule:
             raise ValueError(f"program {program!r}: expected one of {', '.join(PROGRAMS)}")
         #: "model": the Python programs; "firmware": the C programs (module_sim.firmware)
         self.program = program
+        if program == "firmware" and ir_baud != Baud.IR:
+            # the C programs' localization slots are built for the IR baud rate (bus.cheader)
+            raise ValueError(f"the firmware program is built for {int(Baud.IR)} baud IR, not {ir_baud}: "
+                             "use program = \"model\" for other IR baud rates")
         self.bus = bus
         self.origin = origin
         #: side-IR bytes its comm board took in: light a real board beside virtual

@@ -4,12 +4,11 @@ participant whose handler cannot take it publishes a ``bad-sample`` event and go
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
 
 from bus import SessionOptions, WallClock
 from bus.transport import Bus
 from planner_svc.endpoint import ExpectTimeout, PcEndpoint
+from processes import hexbench, wall_fleet
 
 #: (key under the fleet, payload): each broke a participant before (issue 31's probes)
 BAD = [
@@ -38,14 +37,10 @@ def _talk_to_m1(pc: PcEndpoint) -> None:
 def test_a_fleet_survives_bad_samples_and_says_so():
     port = 19000 + os.getpid() % 1000
     fleet = f"bad{os.getpid()}"
-    proc = subprocess.Popen([sys.executable, "-m", "hexbench", "fleet", "pair", "--clock", "wall",
-                             "--listen", f"tcp/127.0.0.1:{port}", "--fleet", fleet, "--seconds", "60"],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    proc = wall_fleet("pair", port, fleet)
     clock = WallClock()
     bus = Bus(clock, fleet, options=SessionOptions(connect=[f"tcp/127.0.0.1:{port}"]))
     try:
-        assert proc.stdout.readline().startswith(f"fleet pair:")
         events: list[dict] = []
         bus.subscribe_json(f"{bus.keys.root}/event/*",
                            lambda k, d: events.append(d) if d["kind"] == "bad-sample" else None)
@@ -89,21 +84,13 @@ def test_a_fleet_and_a_bridge_take_a_thousand_malformed_samples_per_key():
 
     port = 20000 + os.getpid() % 1000
     fleet = f"fuzz{os.getpid()}"
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    common = ["--clock", "wall", "--fleet", fleet, "--seconds", "120"]
-    procs = [
-        subprocess.Popen([sys.executable, "-m", "hexbench", "fleet", "pair", *common,
-                          "--listen", f"tcp/127.0.0.1:{port}"],
-                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env),
-        subprocess.Popen([sys.executable, "-m", "hexbench", "hil", "--port", "loop://", *common,
-                          "--connect", f"tcp/127.0.0.1:{port}"],
-                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env),
-    ]
+    procs = [wall_fleet("pair", port, fleet, seconds=120),
+             hexbench("hil", "--port", "loop://", "--clock", "wall", "--fleet", fleet,
+                      "--seconds", "120", "--connect", f"tcp/127.0.0.1:{port}")]
     clock = WallClock()
     bus = Bus(clock, fleet, options=SessionOptions(connect=[f"tcp/127.0.0.1:{port}"]))
     try:
-        for p in procs:
-            p.stdout.readline()
+        procs[1].stdout.readline()
         events: list[dict] = []
         bus.subscribe_json(f"{bus.keys.root}/event/*",
                            lambda k, d: events.append(d) if d["kind"] == "bad-sample" else None)

@@ -67,3 +67,12 @@ def test_a_baud_rate_of_zero_is_refused(capsys):
     with pytest.raises(SystemExit) as exc:
         main(["hil", "--port", "loop://", "--baud", "0"])
     assert exc.value.code == 2 and "0 baud: expected 1..1000000" in capsys.readouterr().err
+
+
+def test_version(capsys):
+    from importlib.metadata import version
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["--version"])
+    assert exit_.value.code == 0
+    assert capsys.readouterr().out.strip() == f"hexbench {version('hexbench')}"

@@ -102,3 +102,14 @@ def test_firmware_modules_in_a_scenario_and_on_the_command_line(tmp_path):
     p.write_text(p.read_text().replace('"firmware"', '"simavr"'))
     with pytest.raises(ScenarioError, match="'virtual', 'real' or 'firmware'"):
         load(p)
+
+
+def test_the_firmware_program_needs_300_baud(tmp_path):
+    p = tmp_path / "fast.toml"
+    p.write_text('name = "fast"\nir_baud = 62500\nprogram = "firmware"\ninitial = [[0, 0], [1, 0]]\n')
+    with pytest.raises(ScenarioError, match="ir_baud.*300 with program 'firmware'"):
+        load(p)
+    p.write_text('name = "fast"\nir_baud = 62500\ninitial = [[0, 0], [1, 0]]\n')
+    with pytest.raises(ScenarioError, match="built for 300 baud IR"):
+        override(load(p), program="firmware")
+    assert override(load(p), program="model").program == "model"
