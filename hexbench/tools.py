@@ -48,6 +48,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("monitor", help="print frames and events on the bus as they pass")
     add_bus_arguments(p)
     p.add_argument("--link", action="append", help="only these links (repeatable)")
+    p.add_argument("--table", action="store_true",
+                   help="one row per link and sender (last frame, counts, rate, errors), "
+                        "updated in place, like can.viewer")
     p.add_argument("--seconds", type=float, help="stop after this many seconds")
     p.set_defaults(func=cmd_monitor)
 
@@ -181,6 +184,8 @@ def cmd_scenarios(args: argparse.Namespace) -> int:
 
 
 def cmd_monitor(args: argparse.Namespace) -> int:
+    if args.table:
+        return _monitor_table(args)
     bus = open_bus(args)
     clock = bus.clock
     links = set(args.link or [])
@@ -198,6 +203,57 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     bus.subscribe(bus.keys.world_event, on_event)
     try:
         clock.run(timeout_s=args.seconds)
+    finally:
+        bus.close()
+    return 0
+
+
+def _monitor_table(args: argparse.Namespace) -> int:
+    """``monitor --table``, like can.viewer: one row per link and sender, updated in place."""
+    from rich.console import Console
+    from rich.live import Live
+    from rich.table import Table
+
+    bus = open_bus(args)
+    clock = bus.clock
+    links = set(args.link or [])
+    rows: dict[tuple[str, str], dict] = {}
+    start: list[int] = []
+
+    def on_frame(env: Envelope) -> None:
+        if links and env.link not in links:
+            return
+        if not start:
+            start.append(env.sim_time_ns)
+        r = rows.setdefault((env.link, env.src), {"count": 0, "noise": 0, "first": env.sim_time_ns})
+        r["count"] += 1
+        r["noise"] += env.kind == "noise"
+        r["last"] = env.sim_time_ns
+        r["dst"] = env.dst
+        r["what"] = env.frame.describe()
+
+    def table() -> Table:
+        t = Table(title=f"hexbench monitor: {bus.keys.root}", expand=True)
+        for col in ("link", "source", "to", "frames", "errors", "rate /s", "last (s)", "last frame"):
+            t.add_column(col, no_wrap=col != "last frame",
+                         justify="right" if col in ("frames", "errors", "rate /s", "last (s)") else "left")
+        for (link, src), r in sorted(rows.items()):
+            span = (r["last"] - r["first"]) / 1e9
+            rate = (r["count"] - 1) / span if span > 0 else 0.0
+            t.add_row(link, src, r["dst"], str(r["count"]), str(r["noise"]), f"{rate:.1f}",
+                      f"{(r['last'] - start[0]) / 1e9:.3f}", r["what"])
+        return t
+
+    console = Console()
+    bus.subscribe_frames(on_frame)
+    try:
+        with Live(table(), console=console, refresh_per_second=4, transient=False) as live:
+            def refresh() -> None:
+                live.update(table())
+                clock.call_later(250_000_000, refresh)
+            clock.call_later(250_000_000, refresh)
+            clock.run(timeout_s=args.seconds)
+            live.update(table())
     finally:
         bus.close()
     return 0
