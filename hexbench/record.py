@@ -152,13 +152,22 @@ def cmd_info(args: argparse.Namespace) -> int:
     state = "complete" if s.complete else "no footer (recovered)"
     print(f"state:      {state}{'; ' + '; '.join(s.truncated) if s.truncated else ''}")
     print(f"duration:   {s.duration_s:.3f} s  ({t.messages} samples, compression {'/'.join(s.compression) or '-'})")
-    print(f"frames:     {t.frames}  noise {t.noise}  errors {t.errors}  faults {t.faults}"
+    expected = _expected_overruns(args.file, s.channels) if t.errors_by_kind.get("uart-overrun") else 0
+    print(f"frames:     {t.frames}  noise {t.noise}  errors {t.errors - expected}"
+          + (f" (and {expected} expected)" if expected else "") + f"  faults {t.faults}"
           + (f"  undecodable {s.undecodable}" if s.undecodable else ""))
     for link, n in sorted(t.frames_by_link.items()):
         noise = t.noise_by_link.get(link, 0)
         print(f"  {link:12} {n:8}" + (f"  ({noise} noise)" if noise else ""))
     if t.errors_by_kind:
-        print("errors:     " + ", ".join(f"{k} {n}" for k, n in sorted(t.errors_by_kind.items())))
+        errors = dict(t.errors_by_kind)
+        if expected:
+            errors["uart-overrun"] -= expected
+            errors = {k: n for k, n in errors.items() if n}
+        print("errors:     " + (", ".join(f"{k} {n}" for k, n in sorted(errors.items())) or "none"))
+        if expected:
+            print(f"expected:   uart-overrun {expected} (UART0 during the boot handshake: the control "
+                  "board repeats 'R' while the comm board blinks its LEDs)")
     if t.world_events_by_kind:
         print("world:      " + ", ".join(f"{k} {n}" for k, n in sorted(t.world_events_by_kind.items())))
     print("metadata:")
@@ -168,6 +177,26 @@ def cmd_info(args: argparse.Namespace) -> int:
     for topic, schema in sorted(s.channels.items()):
         print(f"  {topic:32} {schema:24} {t.by_topic.get(topic, 0)}")
     return 1 if s.damaged else 0
+
+
+def _expected_overruns(path, channels) -> int:
+    """Overruns that are part of a healthy boot: the handshake's 'R's on UART0."""
+    import json as _json
+
+    from recordings.reader import iter_samples
+
+    n = 0
+    topics = [t for t in channels if t.startswith("event/")]
+    for sample in iter_samples(path, topics):
+        if b'"uart-overrun"' not in sample.data:
+            continue
+        try:
+            d = _json.loads(sample.data)
+        except ValueError:
+            continue
+        if d.get("kind") == "uart-overrun" and d.get("uart") == "uart0" and d.get("lost") == 0x52:
+            n += 1
+    return n
 
 
 def _warn_damaged(damaged: list) -> None:

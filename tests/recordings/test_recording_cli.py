@@ -28,3 +28,18 @@ def test_info_text(recorded, capsys):
 def test_info_missing_file(tmp_path, capsys):
     assert main(["info", str(tmp_path / "nope.mcap")]) == 2
     assert "no recording" in capsys.readouterr().err
+
+
+def test_info_tells_the_boot_handshake_from_errors(tmp_path, capsys):
+    """The control board repeats 'R' on UART0 while the comm board blinks: those overruns are
+    a healthy boot, and info says so instead of counting them as errors."""
+    out = tmp_path / "pair.mcap"
+    assert main(["run", "pair", "--planner", "thesis-serial", "--clock", "virtual",
+                 "--record", str(out)]) == 0
+    capsys.readouterr()
+    assert main(["info", str(out)]) == 0
+    text = capsys.readouterr().out
+    expected = int(text.split("expected:   uart-overrun ")[1].split()[0])
+    assert expected > 0 and "boot handshake" in text
+    frames_line = next(line for line in text.splitlines() if line.startswith("frames:"))
+    assert f"(and {expected} expected)" in frames_line
