@@ -8,7 +8,7 @@ import os
 from bus import SessionOptions, WallClock
 from bus.transport import Bus
 from planner_svc.endpoint import ExpectTimeout, PcEndpoint
-from processes import hexbench, wall_fleet
+from processes import free_port, hexbench, wall_fleet
 
 #: (key under the fleet, payload): each broke a participant before (issue 31's probes)
 BAD = [
@@ -82,7 +82,7 @@ def test_a_fleet_and_a_bridge_take_a_thousand_malformed_samples_per_key():
     on: one ``bad-sample`` event each, and both still answer a PC."""
     import random
 
-    port = 20000 + os.getpid() % 1000
+    port = free_port()
     fleet = f"fuzz{os.getpid()}"
     procs = [wall_fleet("pair", port, fleet, seconds=120),
              hexbench("hil", "--port", "loop://", "--clock", "wall", "--fleet", fleet,

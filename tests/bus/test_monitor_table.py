@@ -10,11 +10,11 @@ import subprocess
 import sys
 import time
 
-from processes import wall_fleet
+from processes import free_port, wall_fleet
 
 
 def test_monitor_table_draws_a_row_per_module():
-    port = 23000 + os.getpid() % 1000
+    port = free_port()
     fleet = f"table{os.getpid()}"
     proc = wall_fleet("pair", port, fleet, seconds=30)
     master, slave = pty.openpty()

@@ -14,6 +14,7 @@ import zenoh
 from bus import SessionOptions, UsageError, WallClock
 from bus.transport import Bus
 from hexbench.cli import main
+from processes import free_port
 
 pytestmark = pytest.mark.skipif(shutil.which("openssl") is None, reason="needs openssl")
 
@@ -77,7 +78,7 @@ def _mtls(d, conf: dict[str, str]) -> dict[str, str]:
 
 def test_mutual_tls_lets_in_only_participants_with_a_certificate(tmp_path):
     conf = _mtls(tmp_path, _certs(tmp_path))
-    port = 21000 + os.getpid() % 1000
+    port = free_port()
     endpoint = f"tls/localhost:{port}"
     fleet = "mtls"
     server = Bus(WallClock(), fleet, options=SessionOptions(listen=[endpoint], config=conf["server"]))

@@ -5,11 +5,11 @@ from __future__ import annotations
 import os
 
 from hexbench.cli import main
-from processes import wall_fleet
+from processes import free_port, wall_fleet
 
 
 def test_send_to_a_running_fleet(capsys):
-    port = 22000 + os.getpid() % 1000
+    port = free_port()
     fleet = f"send{os.getpid()}"
     proc = wall_fleet("pair", port, fleet, seconds=90)
     bus = ["--connect", f"tcp/127.0.0.1:{port}", "--fleet", fleet]

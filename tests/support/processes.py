@@ -24,3 +24,12 @@ def wall_fleet(scenario: str, port: int, fleet: str, seconds: float = 60) -> sub
         proc.kill()
         raise AssertionError(f"the fleet did not start: {line}{proc.communicate()[0]}")
     return proc
+
+
+def free_port() -> int:
+    """A TCP port nobody listens on now (the kernel's choice), for a zenoh listener."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
