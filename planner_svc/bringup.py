@@ -150,6 +150,10 @@ class BringUp:
         self.say(f"bring-up: boot done at {(clock.now_ns() - clock.started_ns) / NS_PER_S:.1f} s: {len(banners)} banners "
                  f"intact, {noise} noise frames (banners of modules booting together collide)")
 
+    def _elapsed_s(self) -> float:
+        clock = self.pc.bus.clock
+        return (clock.now_ns() - clock.started_ns) / NS_PER_S
+
     def run(self, since_ns: int = 0) -> Fleetview:
         self.wait_boot(since_ns)
         if self.profile == "thesis-2009":
@@ -159,10 +163,12 @@ class BringUp:
         ref = self.scenario.fixed_module
         # every module answers: it is powered and addressable
         reports = {ident: self.report(ident) for ident in sorted(virtual_or_real)}
+        n = len(virtual_or_real)
+        self.say(f"bring-up: {n} modules answered their Report at {self._elapsed_s():.1f} s")
         self.select(ref.id)
         self.command(F.Ref, what=f"Ref(m{ref.id})")
         reports[ref.id] = self.report(ref.id)
-        n = len(virtual_or_real)
+        self.say(f"bring-up: m{ref.id} is the reference at {self._elapsed_s():.1f} s")
         while True:
             pending = [i for i in sorted(reports) if not reports[i]["localized"]]
             # a real board cannot exchange side IR with virtual neighbours (docs/hil.md): it
@@ -176,6 +182,9 @@ class BringUp:
             self.localize_step()
             for i in pending:
                 reports[i] = self.report(i)
+            done = sum(1 for r in reports.values() if r["localized"])
+            self.say(f"bring-up: Localize step {self.localize_steps}: {done} of {n} modules "
+                     f"localized at {self._elapsed_s():.1f} s")
         done = sum(1 for r in reports.values() if r["localized"])
         self.say(f"bring-up: localized {done} of {n} modules in {self.localize_steps} Localize step(s)")
         view = Fleetview(source="location reports")

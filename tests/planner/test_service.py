@@ -132,3 +132,15 @@ def test_the_documented_example_script_moves_the_pair(capsys):
     code, out = run(capsys, "pair", "--planner", f"script:{ROOT / 'docs/scripts/pair-rotate.txt'}")
     assert code == 0, out
     assert "script finished; the world is at the goal" in out.strip().splitlines()[-1]
+
+
+def test_bring_up_says_where_it_is(capsys):
+    """A wall-clock bring-up takes minutes: each phase prints a line with its sim time."""
+    from hexbench.cli import main
+
+    assert main(["run", "pair", "--planner", "thesis-serial", "--clock", "virtual"]) == 0
+    out = capsys.readouterr().out
+    lines = [line for line in out.splitlines() if line.startswith("bring-up:")]
+    assert [line.split(":")[1].split()[0] for line in lines][:5] == ["boot", "2", "m1", "Localize",
+                                                                     "localized"]
+    assert "m1 is the reference at" in out and "Localize step 1: 2 of 2 modules localized at" in out
