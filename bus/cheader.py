@@ -19,7 +19,7 @@ import threading
 from pathlib import Path
 
 from . import codec, pins, rotations, timing
-from .functions import ACK_TIMEOUT, ACK_UNKNOWN, ARG_UNUSED, FUNCTIONS, Board
+from .functions import ACK_TIMEOUT, ACK_UNKNOWN, ARG_UNUSED, BY_NAME, FUNCTIONS, Board
 from .lattice import NEIGHBOUR_OFFSET, Cell, Direction, Joint, Side, move_rule
 
 from .errors import HexbenchError
@@ -147,7 +147,7 @@ def header() -> str:
             "/* LED mirrors the comm board runs with a control code (up to two, 0 = none). */",
             "#define FN_MIRRORS { \\"]
     for f in sorted((f for f in FUNCTIONS.values() if f.board is Board.CONTROL), key=lambda f: f.code):
-        codes = [FUNCTIONS_BY_NAME[m] for m in f.led_mirror] + [0, 0]
+        codes = [BY_NAME[m.lower()].code for m in f.led_mirror] + [0, 0]
         out.append(f"    {{{f.code}, {codes[0]}, {codes[1]}}}, \\")
     out += ["}", "", "/* --- pins (Tables 3-3, 3-4, 3-5; bus/pins.py): port index 0..4 = A..E,"
             " side/joint 1..6 --- */"]
@@ -209,9 +209,6 @@ def header() -> str:
     out.append(f"#define ORIENTATION_STEP_CW {rotations.orientation_after(0, Direction.CW)}")
     out += ["", "#endif", ""]
     return "\n".join(out)
-
-
-FUNCTIONS_BY_NAME = {f.name: f.code for f in FUNCTIONS.values()}
 
 
 def main(argv: list[str] | None = None) -> int:

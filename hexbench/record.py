@@ -181,8 +181,6 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 def _expected_overruns(path, channels) -> int:
     """Overruns that are part of a healthy boot: the handshake's 'R's on UART0."""
-    import json as _json
-
     from recordings.reader import iter_samples
 
     n = 0
@@ -191,7 +189,7 @@ def _expected_overruns(path, channels) -> int:
         if b'"uart-overrun"' not in sample.data:
             continue
         try:
-            d = _json.loads(sample.data)
+            d = json.loads(sample.data)
         except ValueError:
             continue
         if d.get("kind") == "uart-overrun" and d.get("uart") == "uart0" and d.get("lost") == 0x52:

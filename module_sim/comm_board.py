@@ -14,7 +14,7 @@ from bus.rotations import orientation_after
 from bus.clock import Clock
 from bus.functions import ACK_UNKNOWN, FUNCTIONS, Board, FunctionCode as F
 from bus.lattice import Cell, Direction, Joint, Side, body_to_global, move_rule
-from bus.pins import IR_SEL_MASK, LED_JOINT, LED_NEG, LED_POS, Pin, fold, ir_select_bits, ir_selected
+from bus.pins import IR_SEL_A, IR_SEL_MASK, LED_JOINT, LED_NEG, LED_POS, Pin, fold, ir_select_bits, ir_selected
 from bus.timing import (ECHO_TIMEOUT_TICKS, HANDSHAKE_RETRY_TICKS, LOCALIZE_LISTEN_TICKS,
                         SUBSTRATE_ACK_DELAY_TICKS, Baud,
                         localize_slot_ticks)
@@ -67,15 +67,17 @@ class CommBoard(Mcu):
     def IrSel(self, i: int) -> None:
         if not 0 <= i <= 6:
             return  # the firmware's if-chain ignores other values
-        before = self.ir_transceiver
-        self.write_port("A", (self.port["A"] & ~IR_SEL_MASK) | ir_select_bits(i))
-        if self.ir_transceiver != before:
-            self.mux_changed_at = self.clock.now_ns()
+        self.write_port(IR_SEL_A.port, (self.port[IR_SEL_A.port] & ~IR_SEL_MASK) | ir_select_bits(i))
 
-    def firmware_port_write(self, port: str, value: int) -> None:
+    def _write(self, port: str, value: int) -> None:
+        """Every write of the selector's port, the Python IrSel's or the C program's, tells
+        when the multiplexer last moved (``accepts_ir``)."""
+        if port != IR_SEL_A.port:
+            super()._write(port, value)
+            return
         before = self.ir_transceiver
-        self._write(port, value)
-        if self.ir_transceiver != before:  # the C program's IrSel
+        super()._write(port, value)
+        if self.ir_transceiver != before:
             self.mux_changed_at = self.clock.now_ns()
 
     def accepts_ir(self, transceiver: int, start_ns: int) -> bool:

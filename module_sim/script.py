@@ -98,11 +98,14 @@ def run_script(script: Script, seconds: float, *, profile: str = "v2", module_id
         bus.close()
 
 
+def _channel(transceiver: int | None) -> int:
+    """The CD4051 channel a transceiver is on (7: the unwired Y7)."""
+    return 7 if transceiver is None else IR_TRANSCEIVER_CHANNEL.get(transceiver, 7)
+
+
 def _deliver(module: VirtualModule, log: list[Event], byte: int, start: int) -> None:
-    k = module.comm.ir_transceiver
     if not module.comm.accepts_ir(0, start):
-        ch = IR_TRANSCEIVER_CHANNEL.get(k, 7) if k is not None else 7
-        log.append(Event(start, "irdrop", f"{byte:02x} {ch}"))
+        log.append(Event(start, "irdrop", f"{byte:02x} {_channel(module.comm.ir_transceiver)}"))
     module._ir_rx(0, byte, start, False)
 
 
@@ -118,8 +121,7 @@ def _watch(module: VirtualModule, log: list[Event]) -> None:
             if k == 0:
                 log.append(Event(start, "ir", f"{byte:02x}"))
             else:
-                ch = IR_TRANSCEIVER_CHANNEL.get(k, 7) if k is not None else 7
-                log.append(Event(start, "irside", f"{byte:02x} {ch}"))
+                log.append(Event(start, "irside", f"{byte:02x} {_channel(k)}"))
         if ir_tx is not None:
             ir_tx(data, starts)
 

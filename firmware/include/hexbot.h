@@ -104,6 +104,10 @@ uint8_t fn_nargs(uint8_t code);
 uint8_t fn_is_v2(uint8_t code);
 uint8_t fn_mirror(uint8_t code, uint8_t k);  /* k-th LED mirror of a control code, or 0 */
 void port_change(uint8_t port, uint8_t mask, uint8_t set);
+/* Pin i (folded into 1..6) of a pin table (ports[], masks[] of hexbot_gen.h): set or clear. */
+void pin_change(const uint8_t *ports, const uint8_t *masks, int16_t i, uint8_t set);
+/* All six pins of a table: one write per port, in port order (as the model does). */
+void pins_change(const uint8_t *ports, const uint8_t *masks, uint8_t set);
 
 /* One rotation (bus/rotations.py) through a board's own actions. */
 enum { ROT_OPEN = 1, ROT_POS, ROT_NEG, ROT_CLOSE_ALL, ROT_OFF_ALL, ROT_WAIT };

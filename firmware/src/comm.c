@@ -52,21 +52,15 @@ static void IrSel(uint8_t i)
     board_port_write(IR_SEL_PORT, (uint8_t)((a & ~IR_SEL_MASK) | fw_byte(&SEL_BITS[i])));
 }
 
+/* LEDs are active low: on = bit cleared. */
 static void led(const uint8_t *ports, const uint8_t *masks, int16_t i, uint8_t on)
 {
-    uint8_t k = fold(i);
-    port_change(fw_byte(&ports[k]), fw_byte(&masks[k]), !on); /* active low */
+    pin_change(ports, masks, i, !on);
 }
 
-/* All six LEDs of a kind: one write per port, in port order. */
 static void leds(const uint8_t *ports, const uint8_t *masks, uint8_t on)
 {
-    uint8_t mask[5] = {0, 0, 0, 0, 0};
-    for (uint8_t k = 1; k <= 6; k++)
-        mask[fw_byte(&ports[k])] |= fw_byte(&masks[k]);
-    for (uint8_t p = 0; p < 5; p++)
-        if (mask[p])
-            port_change(p, mask[p], !on); /* active low */
+    pins_change(ports, masks, !on);
 }
 
 static void LOn(void)
@@ -160,6 +154,17 @@ static uint8_t co_circle(uint8_t n, uint8_t t)
     PT_END(pt);
 }
 
+/* LColor's three kinds in turn: joint, negative, positive LEDs. */
+static void color_leds(uint8_t kind, uint8_t on)
+{
+    if (kind == 0)
+        leds(JNT_PORT, JNT_MASK, on);
+    else if (kind == 1)
+        leds(NEG_PORT, NEG_MASK, on);
+    else
+        leds(POS_PORT, POS_MASK, on);
+}
+
 /* LColor, LFlash1, LFlash2 */
 static uint8_t co_flash(uint8_t code, uint8_t n, uint8_t t)
 {
@@ -168,19 +173,9 @@ static uint8_t co_flash(uint8_t code, uint8_t n, uint8_t t)
     for (an_round = 0; an_round < n; an_round++) {
         if (code == FC_LColor) {
             for (an_k = 0; an_k < 3; an_k++) {
-                if (an_k == 0)
-                    leds(JNT_PORT, JNT_MASK, 1);
-                else if (an_k == 1)
-                    leds(NEG_PORT, NEG_MASK, 1);
-                else
-                    leds(POS_PORT, POS_MASK, 1);
+                color_leds(an_k, 1);
                 DELAY(pt, t);
-                if (an_k == 0)
-                    leds(JNT_PORT, JNT_MASK, 0);
-                else if (an_k == 1)
-                    leds(NEG_PORT, NEG_MASK, 0);
-                else
-                    leds(POS_PORT, POS_MASK, 0);
+                color_leds(an_k, 0);
                 DELAY(pt, t);
             }
         } else if (code == FC_LFlash1) {

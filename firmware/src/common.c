@@ -65,6 +65,22 @@ void port_change(uint8_t port, uint8_t mask, uint8_t set)
     board_port_write(port, set ? (uint8_t)(v | mask) : (uint8_t)(v & ~mask));
 }
 
+void pin_change(const uint8_t *ports, const uint8_t *masks, int16_t i, uint8_t set)
+{
+    uint8_t k = fold(i);
+    port_change(fw_byte(&ports[k]), fw_byte(&masks[k]), set);
+}
+
+void pins_change(const uint8_t *ports, const uint8_t *masks, uint8_t set)
+{
+    uint8_t mask[5] = {0, 0, 0, 0, 0};
+    for (uint8_t k = 1; k <= 6; k++)
+        mask[fw_byte(&ports[k])] |= fw_byte(&masks[k]);
+    for (uint8_t p = 0; p < 5; p++)
+        if (mask[p])
+            port_change(p, mask[p], set);
+}
+
 const int8_t *rotation_steps(uint8_t code)
 {
     switch (code) {

@@ -24,53 +24,27 @@ static const char S_CTR_LST[] FW_CONST = TXT_CTR_LST;
 
 /* v2 actuator reports (docs/protocol.md): once the board listens, every step that changes
  * a solenoid or relay sends one ACT line in the background. */
-static uint8_t reporting, report_due, reported[3], have_reported;
+static uint8_t reporting, reported[3], have_reported;
 
-static void write_port(uint8_t port, uint8_t value)
-{
-    if ((board_port(port) ^ value) & ACTUATOR_BITS[port] && reporting)
-        report_due = 1;
-    board_port_write(port, value);
-}
-
-static void pin(const uint8_t *ports, const uint8_t *masks, int16_t i, uint8_t on)
-{
-    uint8_t k = fold(i);
-    uint8_t port = fw_byte(&ports[k]), mask = fw_byte(&masks[k]);
-    uint8_t v = board_port(port);
-    write_port(port, on ? (uint8_t)(v | mask) : (uint8_t)(v & ~mask));
-}
-
-static void JxOpen(int16_t i) { pin(JOINT_PORT, JOINT_MASK, i, 1); }
-static void JxClose(int16_t i) { pin(JOINT_PORT, JOINT_MASK, i, 0); }
-static void SxP(int16_t i) { pin(POS_PORT, POS_MASK, i, 1); }
-static void SxN(int16_t i) { pin(NEG_PORT, NEG_MASK, i, 1); }
+static void JxOpen(int16_t i) { pin_change(JOINT_PORT, JOINT_MASK, i, 1); }
+static void JxClose(int16_t i) { pin_change(JOINT_PORT, JOINT_MASK, i, 0); }
+static void SxP(int16_t i) { pin_change(POS_PORT, POS_MASK, i, 1); }
+static void SxN(int16_t i) { pin_change(NEG_PORT, NEG_MASK, i, 1); }
 
 static void SxOff(int16_t i)
 {
-    pin(POS_PORT, POS_MASK, i, 0);
-    pin(NEG_PORT, NEG_MASK, i, 0);
+    pin_change(POS_PORT, POS_MASK, i, 0);
+    pin_change(NEG_PORT, NEG_MASK, i, 0);
 }
 
-static void JxAll(uint8_t on)
-{
-    /* one write per port, as the thesis's PORTA mask did */
-    uint8_t mask[5] = {0, 0, 0, 0, 0};
-    for (uint8_t k = 1; k <= 6; k++)
-        mask[fw_byte(&JOINT_PORT[k])] |= fw_byte(&JOINT_MASK[k]);
-    for (uint8_t p = 0; p < 5; p++) {
-        if (mask[p]) {
-            uint8_t v = board_port(p);
-            write_port(p, on ? (uint8_t)(v | mask[p]) : (uint8_t)(v & ~mask[p]));
-        }
-    }
-}
+/* all six joints: one write per port, as the thesis's PORTA mask did */
+static void JxAll(uint8_t on) { pins_change(JOINT_PORT, JOINT_MASK, on); }
 
 static void SxOffAll(void)
 {
     /* PORTB and PORTD hold every relay; keep only the UART pins */
-    write_port(PORT_B, board_port(PORT_B) & UART_PINS[PORT_B]);
-    write_port(PORT_D, board_port(PORT_D) & UART_PINS[PORT_D]);
+    board_port_write(PORT_B, board_port(PORT_B) & UART_PINS[PORT_B]);
+    board_port_write(PORT_D, board_port(PORT_D) & UART_PINS[PORT_D]);
 }
 
 static void TurnOffAll(void)
@@ -216,9 +190,12 @@ static void report(void)
 
 void program_step(void)
 {
+    uint8_t before[5], changed = 0;
+    for (uint8_t p = 0; p < 5; p++)
+        before[p] = board_port(p) & ACTUATOR_BITS[p];
     co_main();
-    if (report_due) { /* one report for every bit a step changed */
-        report_due = 0;
+    for (uint8_t p = 0; p < 5; p++)
+        changed |= (uint8_t)((board_port(p) & ACTUATOR_BITS[p]) != before[p]);
+    if (changed && reporting) /* one report for every bit a step changed */
         report();
-    }
 }

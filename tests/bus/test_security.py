@@ -19,16 +19,24 @@ from processes import free_port
 pytestmark = pytest.mark.skipif(shutil.which("openssl") is None, reason="needs openssl")
 
 
+def _openssl(d, *args: str) -> None:
+    subprocess.run(["openssl", *args], cwd=d, check=True, capture_output=True)
+
+
+def _signed(d, name: str, subject: str, extension: str) -> None:
+    """``name``.key and ``name``.crt for ``subject``, signed by the CA of ``d``."""
+    _openssl(d, "req", "-newkey", "rsa:2048", "-nodes", "-keyout", f"{name}.key", "-out", f"{name}.csr",
+             "-subj", subject)
+    (d / f"{name}.cnf").write_text(extension + "\n")
+    _openssl(d, "x509", "-req", "-in", f"{name}.csr", "-CA", "ca.crt", "-CAkey", "ca.key",
+             "-CAcreateserial", "-out", f"{name}.crt", "-days", "2", "-extfile", f"{name}.cnf")
+
+
 def _certs(d) -> dict[str, str]:
     """A CA and a server certificate for localhost, signed by it."""
-    run = lambda *a: subprocess.run(["openssl", *a], cwd=d, check=True, capture_output=True)  # noqa: E731
-    run("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", "ca.key", "-out", "ca.crt",
-        "-days", "2", "-subj", "/CN=hexbench test CA")
-    run("req", "-newkey", "rsa:2048", "-nodes", "-keyout", "server.key", "-out", "server.csr",
-        "-subj", "/CN=localhost")
-    (d / "ext.cnf").write_text("subjectAltName=DNS:localhost,IP:127.0.0.1\n")
-    run("x509", "-req", "-in", "server.csr", "-CA", "ca.crt", "-CAkey", "ca.key", "-CAcreateserial",
-        "-out", "server.crt", "-days", "2", "-extfile", "ext.cnf")
+    _openssl(d, "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", "ca.key", "-out", "ca.crt",
+             "-days", "2", "-subj", "/CN=hexbench test CA")
+    _signed(d, "server", "/CN=localhost", "subjectAltName=DNS:localhost,IP:127.0.0.1")
     server, client = d / "server.json5", d / "client.json5"
     server.write_text('{ transport: { link: { tls: { listen_private_key: "%s", listen_certificate: "%s" } } } }'
                       % (d / "server.key", d / "server.crt"))
@@ -36,36 +44,37 @@ def _certs(d) -> dict[str, str]:
     return {"server": str(server), "client": str(client)}
 
 
-def test_tls_lets_in_who_has_the_ca_and_no_one_else(tmp_path):
-    conf = _certs(tmp_path)
-    port = 20000 + os.getpid() % 1000
-    endpoint = f"tls/localhost:{port}"
-    fleet = "tls"
-    server = Bus(WallClock(), fleet, options=SessionOptions(listen=[endpoint], config=conf["server"]))
+def _admits_and_refuses(fleet: str, server_conf: str, member_conf: str,
+                        outsider_conf: str | None) -> None:
+    """A participant with ``member_conf`` joins a TLS listener and its put arrives; one with
+    ``outsider_conf`` (None: no TLS configuration at all) cannot connect."""
+    endpoint = f"tls/localhost:{free_port()}"
+    server = Bus(WallClock(), fleet, options=SessionOptions(listen=[endpoint], config=server_conf))
     got: list[bytes] = []
     server.subscribe(f"hexbot/{fleet}/**", lambda k, p: got.append(p))
     client = Bus(WallClock(), fleet, options=SessionOptions(mode="client", connect=[endpoint],
-                                                            config=conf["client"]))
+                                                            config=member_conf))
     try:
         assert client.wait_remote(f"hexbot/{fleet}/world/sync", timeout_s=10)
         client.put(f"hexbot/{fleet}/world/sync", b"{}")
         server.clock.run(until=lambda: got, timeout_s=10)
         assert got == [b"{}"]
-        with pytest.raises(zenoh.ZError, match="Unable to connect"):  # no CA: the handshake fails
-            Bus(WallClock(), fleet, options=SessionOptions(mode="client", connect=[endpoint]))
+        with pytest.raises(zenoh.ZError, match="Unable to connect"):  # the handshake fails
+            Bus(WallClock(), fleet, options=SessionOptions(mode="client", connect=[endpoint],
+                                                           config=outsider_conf))
     finally:
         client.close()
         server.close()
 
 
+def test_tls_lets_in_who_has_the_ca_and_no_one_else(tmp_path):
+    conf = _certs(tmp_path)
+    _admits_and_refuses("tls", conf["server"], conf["client"], None)  # no CA
+
+
 def _mtls(d, conf: dict[str, str]) -> dict[str, str]:
     """Mutual TLS: the router asks every participant for a certificate signed by the CA."""
-    run = lambda *a: subprocess.run(["openssl", *a], cwd=d, check=True, capture_output=True)  # noqa: E731
-    run("req", "-newkey", "rsa:2048", "-nodes", "-keyout", "client.key", "-out", "client.csr",
-        "-subj", "/CN=hexbench participant")
-    (d / "client.cnf").write_text("extendedKeyUsage=clientAuth\n")
-    run("x509", "-req", "-in", "client.csr", "-CA", "ca.crt", "-CAkey", "ca.key", "-CAcreateserial",
-        "-out", "client.crt", "-days", "2", "-extfile", "client.cnf")
+    _signed(d, "client", "/CN=hexbench participant", "extendedKeyUsage=clientAuth")
     server, client = d / "mserver.json5", d / "mclient.json5"
     server.write_text('{ transport: { link: { tls: { listen_private_key: "%s", listen_certificate: "%s", '
                       'root_ca_certificate: "%s", enable_mtls: true } } } }'
@@ -78,26 +87,8 @@ def _mtls(d, conf: dict[str, str]) -> dict[str, str]:
 
 def test_mutual_tls_lets_in_only_participants_with_a_certificate(tmp_path):
     conf = _mtls(tmp_path, _certs(tmp_path))
-    port = free_port()
-    endpoint = f"tls/localhost:{port}"
-    fleet = "mtls"
-    server = Bus(WallClock(), fleet, options=SessionOptions(listen=[endpoint], config=conf["server"]))
-    got: list[bytes] = []
-    server.subscribe(f"hexbot/{fleet}/**", lambda k, p: got.append(p))
-    client = Bus(WallClock(), fleet, options=SessionOptions(mode="client", connect=[endpoint],
-                                                            config=conf["client"]))
-    try:
-        assert client.wait_remote(f"hexbot/{fleet}/world/sync", timeout_s=10)
-        client.put(f"hexbot/{fleet}/world/sync", b"{}")
-        server.clock.run(until=lambda: got, timeout_s=10)
-        assert got == [b"{}"]
-        # the CA alone (server authentication) is not enough any more
-        with pytest.raises(zenoh.ZError, match="Unable to connect"):
-            Bus(WallClock(), fleet, options=SessionOptions(mode="client", connect=[endpoint],
-                                                           config=conf["ca_only"]))
-    finally:
-        client.close()
-        server.close()
+    # the CA alone (server authentication) is not enough any more
+    _admits_and_refuses("mtls", conf["server"], conf["client"], conf["ca_only"])
 
 
 def test_an_access_control_list_keeps_a_denied_put_from_the_fleet(tmp_path):
