@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from bus.envelope import Envelope
-from recordings.reader import iter_samples, read_frames, read_metadata
+from recordings.reader import iter_samples, read_frames, read_metadata, sim_origin
 
 from .bus_replay import LINKS, BusReplay, parse_links
 from .virtual_run import VirtualRun, resolve_scenario
@@ -142,7 +142,7 @@ def compare(path: str | Path, *, links: Iterable[str] = ("pc",), scenario: str |
     except ValueError as exc:  # ScenarioError is a ValueError
         raise CompareError(f"cannot rebuild the run of {path}: {exc}") from None
     frames = list(read_frames(path))
-    end_ns = max((s.log_time_ns for s in iter_samples(path)), default=0)
+    end_ns = max((s.log_time_ns for s in iter_samples(path)), default=0) - sim_origin(meta)
     expected = [e for e in frames if e.link not in replayed]
     compared = tuple(link for link in LINKS if link not in replayed)
     cmp = _Comparator(expected, frozenset(compared), end_ns)

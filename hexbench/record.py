@@ -137,6 +137,7 @@ def cmd_record(args: argparse.Namespace) -> int:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
+    from recordings.health import WHY, Health, health
     from recordings.reader import summary
 
     try:
@@ -144,7 +145,9 @@ def cmd_info(args: argparse.Namespace) -> int:
     except FileNotFoundError as exc:
         raise UsageError(str(exc)) from None
     if args.json:
-        print(json.dumps(s.to_dict(), indent=2, default=str))
+        d = s.to_dict()
+        d["health"] = health(args.file, s.channels).to_dict()
+        print(json.dumps(d, indent=2, default=str))
         return 1 if s.damaged else 0
     t = s.tally
     _warn_damaged(s.damaged)
@@ -152,22 +155,18 @@ def cmd_info(args: argparse.Namespace) -> int:
     state = "complete" if s.complete else "no footer (recovered)"
     print(f"state:      {state}{'; ' + '; '.join(s.truncated) if s.truncated else ''}")
     print(f"duration:   {s.duration_s:.3f} s  ({t.messages} samples, compression {'/'.join(s.compression) or '-'})")
-    expected = _expected_overruns(args.file, s.channels) if t.errors_by_kind.get("uart-overrun") else 0
-    print(f"frames:     {t.frames}  noise {t.noise}  errors {t.errors - expected}"
+    h = health(args.file, s.channels) if t.errors_by_kind else Health()
+    expected = sum(h.expected.values())
+    print(f"frames:     {t.frames}  noise {t.noise}  errors {sum(h.errors.values())}"
           + (f" (and {expected} expected)" if expected else "") + f"  faults {t.faults}"
           + (f"  undecodable {s.undecodable}" if s.undecodable else ""))
     for link, n in sorted(t.frames_by_link.items()):
         noise = t.noise_by_link.get(link, 0)
         print(f"  {link:12} {n:8}" + (f"  ({noise} noise)" if noise else ""))
     if t.errors_by_kind:
-        errors = dict(t.errors_by_kind)
-        if expected:
-            errors["uart-overrun"] -= expected
-            errors = {k: n for k, n in errors.items() if n}
-        print("errors:     " + (", ".join(f"{k} {n}" for k, n in sorted(errors.items())) or "none"))
-        if expected:
-            print(f"expected:   uart-overrun {expected} (UART0 during the boot handshake: the control "
-                  "board repeats 'R' while the comm board blinks its LEDs)")
+        print("errors:     " + (", ".join(f"{k} {n}" for k, n in sorted(h.errors.items())) or "none"))
+    for why, n in sorted(h.expected.items()):
+        print(f"expected:   {why} {n} ({WHY[why]})")
     if t.world_events_by_kind:
         print("world:      " + ", ".join(f"{k} {n}" for k, n in sorted(t.world_events_by_kind.items())))
     print("metadata:")
@@ -177,24 +176,6 @@ def cmd_info(args: argparse.Namespace) -> int:
     for topic, schema in sorted(s.channels.items()):
         print(f"  {topic:32} {schema:24} {t.by_topic.get(topic, 0)}")
     return 1 if s.damaged else 0
-
-
-def _expected_overruns(path, channels) -> int:
-    """Overruns that are part of a healthy boot: the handshake's 'R's on UART0."""
-    from recordings.reader import iter_samples
-
-    n = 0
-    topics = [t for t in channels if t.startswith("event/")]
-    for sample in iter_samples(path, topics):
-        if b'"uart-overrun"' not in sample.data:
-            continue
-        try:
-            d = json.loads(sample.data)
-        except ValueError:
-            continue
-        if d.get("kind") == "uart-overrun" and d.get("uart") == "uart0" and d.get("lost") == 0x52:
-            n += 1
-    return n
 
 
 def _warn_damaged(damaged: list) -> None:

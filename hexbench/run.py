@@ -14,6 +14,8 @@ from pathlib import Path
 
 from bus import UsageError, add_bus_arguments, open_bus
 
+from .args import instant
+
 
 def add_run_arguments(p: argparse.ArgumentParser, *, with_fleet: bool) -> None:
     p.add_argument("scenario", help="a built-in scenario name or a .toml file")
@@ -39,6 +41,9 @@ def add_run_arguments(p: argparse.ArgumentParser, *, with_fleet: bool) -> None:
                         "board; repeatable; needs --clock wall (docs/firmware.md)")
     if with_fleet:
         p.add_argument("--record", type=Path, metavar="FILE.mcap", help="record the run to MCAP")
+        p.add_argument("--start-time", type=instant, metavar="ISO8601",
+                       help="virtual clock: the instant sim time 0 is in the recording's log times "
+                            "(default: now; in the metadata as start_time)")
         p.add_argument("--compare-model", action="store_true",
                        help="with --program firmware --clock virtual: run the Python programs too "
                             "and report the first frame where the two runs differ (exit 1 if any)")
@@ -187,7 +192,7 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
                        list(sys.argv), {}, fleet=args.fleet)
         if with_fleet and args.record:
             from recordings.recorder import Recorder
-            recorder = Recorder(args.record, fleet=args.fleet, meta=meta)
+            recorder = Recorder(args.record, fleet=args.fleet, meta=meta, start_ns=getattr(args, "start_time", None))
             recorder.attach(bus)
         bus.put(bus.keys.meta, meta.to_json())
         since = clock.now_ns()

@@ -196,7 +196,11 @@ class VirtualModule:
     def _overrun(self, board: Mcu, uart: Uart) -> Callable[[int], None]:
         def on(byte: int) -> None:
             self.overruns += 1
-            self.bus.event(board.name, "uart-overrun", uart=uart.name, lost=byte)
+            if board is self.comm and uart is self.comm.uart1:  # which transceiver it came through
+                self.bus.event(board.name, "uart-overrun", uart=uart.name, lost=byte,
+                               channel=self.comm.ir_transceiver)
+            else:
+                self.bus.event(board.name, "uart-overrun", uart=uart.name, lost=byte)
         return on
 
     def _ports_changed(self, mcu: Mcu) -> None:

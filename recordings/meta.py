@@ -15,8 +15,15 @@ METADATA_NAME = "hexbench"
 #: Name of the MCAP metadata record with the recorder's counts (written when a file is closed).
 STATS_NAME = "hexbench.stats"
 
-_TEXT_KEYS = frozenset({"scenario", "profile", "planner", "clock", "fleet"})
-_PACKAGES = ("hexbench", "eclipse-zenoh", "mcap", "rerun-sdk", "zstandard", "lz4")
+_TEXT_KEYS = frozenset({"scenario", "profile", "planner", "clock", "fleet", "start_time"})
+_PACKAGES = ("hexbench", "eclipse-zenoh", "mcap", "rerun-sdk", "foxglove-sdk", "zstandard", "lz4")
+
+
+def iso_time(t_ns: int) -> str:
+    """An instant as ISO 8601 UTC with milliseconds (``2026-11-25T01:02:03.456Z``)."""
+    from datetime import datetime, timezone
+    dt = datetime.fromtimestamp(t_ns // 1_000_000 / 1000, tz=timezone.utc)
+    return dt.strftime("%Y-%m-%dT%H:%M:%S.") + f"{dt.microsecond // 1000:03d}Z"
 
 
 def package_versions() -> dict[str, str]:

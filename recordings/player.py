@@ -12,7 +12,7 @@ from typing import Any, Iterable, Iterator
 
 from bus.envelope import Envelope
 
-from .reader import RecordingFile, Sample, Undecodable, parts_of, run_metadata
+from .reader import RecordingFile, Sample, Undecodable, parts_of, run_metadata, sim_origin
 
 #: Log times above this are wall-clock epoch times (a live recording), not sim times:
 #: 10**17 ns of sim time is over three years.
@@ -33,10 +33,11 @@ class Player:
         self.t0_ns = self._origin()
 
     def _origin(self) -> int:
-        """Time zero of the replay timeline: 0 for sim-time recordings, the first sample's
-        time for wall-time ones (so the timeline starts at 0 either way)."""
+        """Time zero of the replay timeline: the start instant of sim-time recordings (0 in
+        files older than it), the first sample's time for wall-time ones (so the timeline is
+        sim time either way)."""
         if self.metadata.get("log_time") == "sim":
-            return 0
+            return sim_origin(self.metadata)
         first = self._samples[0].log_time_ns if self._samples else 0
         if self.metadata.get("log_time") == "wall" or first > WALL_EPOCH_THRESHOLD_NS:
             return first

@@ -73,8 +73,12 @@ class Sample:
         return _decode_json(self.data.decode("utf-8"))
 
     def decode(self) -> Any:
-        """The typed value: an Envelope, a bus.messages record, or a dict for other topics."""
-        return kind_of(self.topic).decode(self.json())
+        """The typed value: an Envelope, a bus.messages record, or a dict for other topics
+        (the protobuf bytes as they are for a derived Foxglove channel)."""
+        kind = kind_of(self.topic)
+        if kind.foxglove:
+            return self.data
+        return kind.decode(self.json())
 
 
 @dataclass(frozen=True)
@@ -115,8 +119,11 @@ class RecordingFile:
         self.compression: set[str] = set()
         self.damaged: list[Damage] = []
 
-    def samples(self, topics: Iterable[str] | None = None) -> Iterator[Sample]:
-        """Messages in file order (for our files: the order they were recorded)."""
+    def samples(self, topics: Iterable[str] | None = None, *, derived: bool = False) -> Iterator[Sample]:
+        """Messages in file order (for our files: the order they were recorded).
+
+        The channels the recorder derives for Foxglove (protobuf, not bus samples) come only
+        with ``derived=True`` or when ``topics`` names them."""
         wanted = None if topics is None else set(topics)
         size = self.path.stat().st_size
         with open(self.path, "rb") as f:
@@ -157,11 +164,13 @@ class RecordingFile:
                         ch = channels.get(rec[0])
                         if ch is None:
                             continue  # a message before its channel: not written by us
-                        if wanted is None or ch.topic in wanted:
+                        if (ch.topic in wanted) if wanted is not None else (
+                                derived or ch.message_encoding == "json"):
                             yield Sample(ch.topic, rec[2], rec[3], rec[4], rec[1])
                     elif isinstance(rec, Message):
                         ch = channels.get(rec.channel_id)
-                        if ch is not None and (wanted is None or ch.topic in wanted):
+                        if ch is not None and ((ch.topic in wanted) if wanted is not None else (
+                                derived or ch.message_encoding == "json")):
                             yield Sample(ch.topic, rec.log_time, rec.publish_time, rec.data, rec.sequence)
 
     def _damaged(self, last: list[Any]) -> None:
@@ -264,6 +273,17 @@ def run_metadata(files: Iterable[RecordingFile]) -> dict[str, Any]:
             if name == METADATA_NAME:
                 out = merge(out, from_mcap(data))
     return out
+
+
+def sim_origin(meta: dict[str, Any]) -> int:
+    """What to subtract from a sim-time recording's log times to get sim times: its start
+    instant (0 for a wall-time recording, or one older than start instants)."""
+    if meta.get("log_time", "sim") != "sim":
+        return 0
+    try:
+        return int(meta.get("start_time_ns") or 0)
+    except (TypeError, ValueError):
+        return 0
 
 
 def read_metadata(path: str | Path) -> dict[str, Any]:

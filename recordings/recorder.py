@@ -3,9 +3,14 @@ is visible"; rosbag2/MCAP as the model).
 
 * One channel per key (topic = the key relative to the fleet root), message encoding ``json``,
   a JSON Schema per channel kind (:mod:`recordings.schemas`).
-* Log time = the sample's ``sim_time_ns`` (``time_source="sim"``, virtual runs) or the wall
-  time it was received (``"wall"``, live runs); publish time = the envelope's ``wall_time_ns``
-  or the receive wall time.
+* Log time = a start instant plus the sample's ``sim_time_ns`` (``time_source="sim"``, virtual
+  runs: the file shows a real date; the instant is the metadata's ``start_time_ns``, by default
+  when the recorder started) or the wall time it was received (``"wall"``, live runs); publish
+  time = the envelope's ``wall_time_ns`` or the receive wall time.
+* For Foxglove (:mod:`recordings.foxglove`), beside the bus's channels: ``foxglove/scene``
+  (``foxglove.SceneUpdate``, from the world's and the planner's records, the whole scene again
+  when the file closes) and ``foxglove/log`` (``foxglove.Log``, a line per frame). Every channel
+  has a schema.
 * Flushed at least every ``flush_interval_s`` wall seconds by a background thread, so a killed
   recorder loses at most that much; :mod:`recordings.reader` reads files without a footer.
 * Optional rotation by size or duration into ``<stem>_0001.mcap``, ``<stem>_0002.mcap``...
@@ -30,11 +35,13 @@ from bus.keys import Keys
 from bus.messages import RunMeta
 
 from . import meta as meta_mod
-from .schemas import FRAME, RECORDER_ERROR_TOPIC, UNTYPED, kind_of
+from .foxglove import FrameLog, SceneView
+from .schemas import FRAME, IR_LIGHT, LOG_TOPIC, RECORDER_ERROR_TOPIC, SCENE_TOPIC, UNTYPED, kind_of
 from .sink import CHUNK_SIZE, McapSink
 from .stats import Tally, kind_field
 
 TimeSource = Literal["auto", "sim", "wall"]
+_SCENE_TOPICS = ("world/pose/", "world/actuators/", "world/event", "planner/state")
 _CHECK_SIZE_EVERY = 64  # messages between file-size checks (tell() is a syscall)
 _decode = json.JSONDecoder().decode  # skips json.loads' encoding sniffing (payloads are UTF-8)
 _INT = re.compile(rb"\s*(-?\d+)\s*[,}]")
@@ -67,15 +74,16 @@ class _Route:
 
     topic: str
     fast: bool
+    frame: bool  # a frame/* key (logged for Foxglove too)
     required: tuple[bytes, ...]  # b'"name":' of every required field
     kind: bytes | None  # b'"kind":' if the tally counts this topic by a field
 
     @classmethod
     def of(cls, topic: str) -> "_Route":
         kind = kind_of(topic)
-        fast = kind is FRAME or (kind is UNTYPED and topic != RECORDER_ERROR_TOPIC)
+        fast = kind is FRAME or kind is IR_LIGHT or (kind is UNTYPED and topic != RECORDER_ERROR_TOPIC)
         field_name = kind_field(topic)
-        return cls(topic, fast, tuple(f'"{k}":'.encode() for k in _required(topic)),
+        return cls(topic, fast, kind is FRAME, tuple(f'"{k}":'.encode() for k in _required(topic)),
                    None if field_name is None else f'"{field_name}":'.encode())
 
     def scan(self, payload: bytes) -> tuple[int | None, int | None, str | None] | None:
@@ -117,7 +125,7 @@ class Recorder:
                  compression: str = "zstd", chunk_size: int = CHUNK_SIZE,
                  flush_interval_s: float = 0.5, rotate_bytes: int | None = None,
                  rotate_s: float | None = None, argv: list[str] | None = None,
-                 strict: bool = False) -> None:
+                 strict: bool = False, start_ns: int | None = None, foxglove: bool = True) -> None:
         self.out = Path(out)
         self.keys = Keys(fleet)
         self.time_source: TimeSource = time_source
@@ -129,6 +137,14 @@ class Recorder:
         self.meta: dict[str, Any] = meta_mod.merge(meta_mod.base_metadata(fleet, argv), meta)
         if time_source != "auto":
             self.meta["log_time"] = time_source  # how to read log times (the replay needs it)
+        # The start instant: a sim-time log time is this plus the sim time (seconds, ns).
+        self.start_ns = time.time_ns() // 1_000_000 * 1_000_000 if start_ns is None else int(start_ns)
+        self.meta["start_time_ns"] = self.start_ns
+        self.meta["start_time"] = meta_mod.iso_time(self.start_ns)
+        self._origin = 0  # added to sim times; set to start_ns once the time source is sim
+        self._scene = SceneView() if foxglove else None
+        self._frame_log = FrameLog() if foxglove else None
+        self._last_log_ns = 0
         self._done = Tally()  # counts of the closed parts
         self._part = Tally()  # counts of the open part (written into it when it closes)
         self.strict = strict
@@ -141,6 +157,8 @@ class Recorder:
         self._part_first_ns: int | None = None
         self._lock = threading.Lock()
         self._closed = False
+        if self.time_source == "sim":
+            self._origin = self.start_ns
         self._sink = self._open_part()
         self._stop = threading.Event()
         self._flusher = threading.Thread(target=self._flush_loop, name="recorder-flush", daemon=True)
@@ -158,6 +176,7 @@ class Recorder:
         if self.time_source == "auto":
             self.time_source = "sim" if getattr(bus.clock, "kind", "") == "virtual" else "wall"
             with self._lock:
+                self._origin = self.start_ns if self.time_source == "sim" else 0
                 self.meta["log_time"] = self.time_source
                 self._sink.add_metadata(self.meta)
         bus.subscribe(self.keys.all, self.on_sample)
@@ -183,7 +202,7 @@ class Recorder:
                 sim = self._last_sim_ns
             elif sim > self._last_sim_ns:
                 self._last_sim_ns = sim
-            log_time = wall if self.time_source == "wall" else sim
+            log_time = wall if self.time_source == "wall" else self._origin + sim
             if self._closed:
                 return
             if self.rotating:
@@ -195,6 +214,11 @@ class Recorder:
                 cid = self._cids[route.topic] = self._sink.channel(route.topic)
             self._sink.write_to(cid, payload, log_time, wall if pub is None else pub)
             self._part.add_kind(route.topic, kind, log_time)
+            if route.frame and self._frame_log is not None:
+                try:
+                    self._derived(LOG_TOPIC, self._frame_log.log_payload(payload, kind, log_time), log_time)
+                except (ValueError, KeyError, TypeError):
+                    pass  # not an envelope after all: the frame channel keeps it as it came
 
     def _write_checked(self, topic: str, key: str, payload: bytes, wall: int) -> None:
         """The careful path: decode the whole payload, check its schema's required fields."""
@@ -218,8 +242,10 @@ class Recorder:
         with self._lock:
             if sim is not None and sim > self._last_sim_ns:
                 self._last_sim_ns = sim
-            log_time = wall if self.time_source == "wall" else (self._last_sim_ns if sim is None else sim)
+            log_time = wall if self.time_source == "wall" else self._origin + (self._last_sim_ns if sim is None else sim)
             self._write_locked(topic, payload, obj, log_time, pub if isinstance(pub, int) else wall)
+            if self._scene is not None and topic.startswith(_SCENE_TOPICS):
+                self._to_scene(topic, obj, log_time)
             if topic == "meta" and isinstance(obj, dict) and not self._closed:
                 self.meta = meta_mod.merge(self.meta, RunMeta.from_dict(obj))
                 self._sink.add_metadata(self.meta)
@@ -230,7 +256,7 @@ class Recorder:
                   "wall_time_ns": wall, "sim_time_ns": sim}
         data = json.dumps(record, separators=(",", ":")).encode()
         with self._lock:
-            log_time = wall if self.time_source == "wall" else (self._last_sim_ns if sim is None else sim)
+            log_time = wall if self.time_source == "wall" else self._origin + (self._last_sim_ns if sim is None else sim)
             self._write_locked(RECORDER_ERROR_TOPIC, data, record, log_time, wall)
 
     def _write_locked(self, topic: str, data: bytes, obj: Any, log_time: int, publish_time: int) -> None:
@@ -245,12 +271,42 @@ class Recorder:
         self._sink.write_to(cid, data, log_time, publish_time)
         self._part.add(topic, obj, log_time)
 
+    # -- what the recorder derives for Foxglove ------------------------------------------------------
+    def _to_scene(self, topic: str, obj: Any, log_time: int) -> None:
+        if self._closed:
+            return
+        try:
+            value = kind_of(topic).decode(obj)
+        except (ValueError, KeyError, TypeError):
+            return  # recorded as it came; the scene just does not change
+        assert self._scene is not None
+        update = self._scene.feed(value, log_time)
+        if update is not None:
+            self._derived(SCENE_TOPIC, update, log_time)
+
+    def _derived(self, topic: str, data: bytes, log_time: int) -> None:
+        """A message of the recorder's own (not a bus sample: not in the tally)."""
+        cid = self._cids.get(topic)
+        if cid is None:
+            cid = self._cids[topic] = self._sink.channel(topic)
+        self._sink.write_to(cid, data, log_time, log_time)
+        if log_time > self._last_log_ns:
+            self._last_log_ns = log_time
+
+    def _snapshot(self) -> None:
+        """The whole scene, at the latest time written: each part ends on (and a reader of the
+        last scene message finds) every module where it is."""
+        if self._scene is not None and self._scene.modules:
+            t = max(self._last_log_ns, self._part.last_ns or 0)
+            self._derived(SCENE_TOPIC, self._scene.snapshot(t), t)
+
     # -- parts and rotation --------------------------------------------------------------------
     @property
     def rotating(self) -> bool:
         return self.rotate_bytes is not None or self.rotate_ns is not None
 
     def _close_part(self) -> None:
+        self._snapshot()
         self._sink.close(self._part)
         self._done.merge(self._part)
         self._part = Tally()

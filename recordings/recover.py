@@ -46,7 +46,7 @@ def recover(src: str | Path, dst: str | Path) -> Recovered:
         for part in parts:
             rf = RecordingFile(part)
             ids: dict[str, int] = {}
-            for sample in rf.samples():
+            for sample in rf.samples(derived=True):
                 cid = ids.get(sample.topic)
                 if cid is None:
                     cid = ids[sample.topic] = _channel(writer, rf, sample.topic, schemas, channels)

@@ -149,3 +149,19 @@ class Move:
     def frame_times(self, step_ns: int) -> list[int]:
         """Times of the in-between frames (start and end excluded)."""
         return list(range(self.t0_ns + step_ns, self.end_ns, step_ns))
+
+
+# --- colours (RGB 0..255), one set for every viewer ------------------------------------------------
+MAGNET_COLOURS = {1: (235, 60, 60), -1: (60, 110, 240), 0: (95, 95, 95), 2: (255, 0, 255)}  # +, -, off, both
+JOINT_OPEN, JOINT_CLOSED = (255, 170, 0), (45, 45, 45)
+LED_POS, LED_NEG, LED_JOINT = (255, 80, 80), (90, 140, 255), (255, 230, 60)
+GOAL = (60, 220, 90)
+MOVING = (255, 220, 0)
+FIXED = (150, 150, 150)
+PALETTE = [(120, 200, 255), (160, 230, 140), (250, 180, 120), (210, 160, 250), (250, 230, 120),
+           (130, 230, 220), (250, 150, 190), (190, 190, 190)]
+
+
+def module_colour(name: str) -> tuple[int, int, int]:
+    """A module's own colour (``m3`` -> the third of the palette), the same in every viewer."""
+    return PALETTE[(int(name[1:]) - 1) % len(PALETTE)] if name[1:].isdigit() else PALETTE[-1]

@@ -20,6 +20,7 @@ from functools import lru_cache
 from typing import Any, Union
 
 from bus.envelope import ENVELOPE_SCHEMA, Envelope
+from bus.ir import Burst
 from bus.messages import (Actuators, Energy, PlannerProgress, PlannerState, Pose, Record, RunMeta,
                           Switches, WorldEvent)
 
@@ -82,14 +83,29 @@ def dataclass_schema(cls: type, *, title: str | None = None) -> dict[str, Any]:
 # --- channel kinds -----------------------------------------------------------------------
 @dataclass(frozen=True)
 class ChannelKind:
-    """What a channel carries: a schema name and, if typed, the class that decodes it."""
+    """What a channel carries: a schema name and, if typed, the class that decodes it.
+
+    Bus channels are JSON with a JSON Schema; the channels the recorder derives for Foxglove
+    (:mod:`recordings.foxglove`) are protobuf with Foxglove's own schema (``foxglove=True``).
+    """
 
     name: str  # schema name, "hexbot.Pose"
-    schema: dict[str, Any] | None  # None: schemaless JSON
+    schema: dict[str, Any] | None  # JSON Schema (None only for foxglove kinds)
     cls: type | None = None  # Envelope or a Record subclass
+    foxglove: bool = False  # a foxglove.* protobuf message named ``name``
+
+    @property
+    def message_encoding(self) -> str:
+        return "protobuf" if self.foxglove else "json"
+
+    @property
+    def schema_encoding(self) -> str:
+        return "protobuf" if self.foxglove else "jsonschema"
 
     @property
     def schema_bytes(self) -> bytes:
+        if self.foxglove:
+            return _foxglove_schema(self.name)
         return json.dumps(self.schema, separators=(",", ":")).encode() if self.schema else b""
 
     def decode(self, obj: dict[str, Any]) -> Any:
@@ -119,7 +135,45 @@ RECORDER_ERROR = ChannelKind("hexbench.RecorderError", {
                    "payload_hex": {"type": "string", "description": "the sample's bytes, lowercase hex"},
                    "wall_time_ns": {"type": "integer"}, "sim_time_ns": {"type": ["integer", "null"]}},
     "required": ["key", "reason", "payload_hex"]})
-UNTYPED = ChannelKind("", None)
+#: ``ir/tx/*`` and ``ir/rx/*``: light on the bus (:mod:`bus.ir`): a burst, or a correction of
+#: earlier bursts (``garble``: a collision changed bytes; ``cut``: a multiplexer moved mid-burst).
+IR_LIGHT = ChannelKind("hexbot.IrLight", {
+    "$schema": JSON_SCHEMA_DRAFT, "title": "hexbot.IrLight", "oneOf": [
+        {**dataclass_schema(Burst, title="burst"),
+         "properties": {**dataclass_schema(Burst)["properties"], "type": {"const": "burst"}}},
+        {"title": "garble", "type": "object", "required": ["type", "dst", "with", "fixes"],
+         "properties": {"type": {"const": "garble"}, "dst": {"type": "string"}, "with": {"type": "string"},
+                        "fixes": {"type": "array", "description": "[src, burst, byte index, new value] each",
+                                  "items": {"type": "array", "minItems": 4, "maxItems": 4}}}},
+        {"title": "cut", "type": "object", "required": ["type", "src", "burst", "index"],
+         "properties": {"type": {"const": "cut"}, "src": {"type": "string"}, "burst": {"type": "integer"},
+                        "index": {"type": "integer"}, "value": {"type": ["integer", "null"]}},
+         "additionalProperties": True}]})
+#: ``world/sync``: a late participant asks the world to republish poses and switches.
+SYNC = ChannelKind("hexbot.Sync", {
+    "$schema": JSON_SCHEMA_DRAFT, "title": "hexbot.Sync", "type": "object",
+    "properties": {"from": {"type": "string"}}, "additionalProperties": True})
+#: ``world/inject``: an actuator fault to apply (:mod:`bus.faults`).
+INJECT = ChannelKind("hexbot.Inject", {
+    "$schema": JSON_SCHEMA_DRAFT, "title": "hexbot.Inject", "type": "object",
+    "properties": {"fault": {"type": "string", "description": "m<id>.S<1-6>[+|-]:off or m<id>.J<1-6>:closed"}},
+    "required": ["fault"]})
+#: Any other key (a foreign publisher's): any JSON value, so that every channel has a schema.
+UNTYPED = ChannelKind("hexbot.Json", {"$schema": JSON_SCHEMA_DRAFT, "title": "hexbot.Json",
+                                      "description": "any JSON value (a key hexbench does not define)"})
+#: What the recorder derives for Foxglove (a scene of the lattice, frames as log lines).
+SCENE = ChannelKind("foxglove.SceneUpdate", None, foxglove=True)
+LOG = ChannelKind("foxglove.Log", None, foxglove=True)
+SCENE_TOPIC = "foxglove/scene"
+LOG_TOPIC = "foxglove/log"
+DERIVED = {SCENE_TOPIC: SCENE, LOG_TOPIC: LOG}
+
+
+@lru_cache(maxsize=None)
+def _foxglove_schema(name: str) -> bytes:
+    """The protobuf FileDescriptorSet Foxglove's SDK ships for one of its messages."""
+    from foxglove import messages  # 50 ms to import: only when a foxglove channel is written
+    return bytes(getattr(messages, name.removeprefix("foxglove.")).get_schema().data)
 
 #: Topic of the recorder's own error records (outside the bus key space: no ``hexbot/`` prefix
 #: is ever stripped to this).
@@ -137,8 +191,11 @@ _BY_PREFIX: tuple[tuple[str, str | None, ChannelKind], ...] = (
     ("world", "confirm", _record(Pose)),
     ("planner", "state", _record(PlannerState)),
     ("planner", "progress", _record(PlannerProgress)),
+    ("world", "sync", SYNC),
+    ("world", "inject", INJECT),
     ("meta", None, _record(RunMeta)),
     ("event", None, BUS_EVENT),
+    ("ir", None, IR_LIGHT),
 )
 
 
@@ -147,6 +204,8 @@ def kind_of(topic: str) -> ChannelKind:
     """The channel kind of a topic (a key relative to the fleet root, ``world/pose/m3``)."""
     if topic == RECORDER_ERROR_TOPIC:
         return RECORDER_ERROR
+    if topic in DERIVED:
+        return DERIVED[topic]
     parts = topic.split("/")
     for first, second, kind in _BY_PREFIX:
         if parts[0] == first and (second is None or (len(parts) > 1 and parts[1] == second)):

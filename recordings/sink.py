@@ -51,15 +51,14 @@ class McapSink:
         cid = self._channels.get(topic)
         if cid is None:
             kind: ChannelKind = kind_of(topic)
-            sid = 0
-            if kind.schema is not None:
-                sid = self._schemas.get(kind.name, 0)
-                if not sid:
-                    sid = self._schemas[kind.name] = self._writer.register_schema(
-                        kind.name, "jsonschema", kind.schema_bytes)
-            key = f"hexbot/{self.fleet}/{topic}" if not topic.startswith("_") else topic
+            sid = self._schemas.get(kind.name, 0)  # every channel has a schema
+            if not sid:
+                sid = self._schemas[kind.name] = self._writer.register_schema(
+                    kind.name, kind.schema_encoding, kind.schema_bytes)
+            # derived channels (_recorder/*, foxglove/*) are the recorder's own, not bus keys
+            key = topic if topic.startswith("_") or kind.foxglove else f"hexbot/{self.fleet}/{topic}"
             cid = self._channels[topic] = self._writer.register_channel(
-                topic, "json", sid, {"key": key, "fleet": self.fleet})
+                topic, kind.message_encoding, sid, {"key": key, "fleet": self.fleet})
             self._seq.append(0)
         return cid
 

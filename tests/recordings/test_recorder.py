@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import subprocess
+from collections import Counter
 
 from mcap.reader import make_reader
 
@@ -20,23 +21,30 @@ def _frame_key(e):
 def test_mcap_reader_reads_the_file(recorded):
     with open(recorded.path, "rb") as f:
         reader = make_reader(f)
-        n = sum(1 for _ in reader.iter_messages(log_time_order=False))
+        encodings = Counter(ch.message_encoding for _, ch, _ in reader.iter_messages(log_time_order=False))
         stats = reader.get_summary().statistics
         names = [m.name for m in reader.iter_metadata()]
-    assert n == recorded.tally.messages == stats.message_count
+    assert sum(encodings.values()) == stats.message_count
+    assert encodings["json"] == recorded.tally.messages  # every bus sample; the rest is for Foxglove
+    assert encodings["protobuf"] >= recorded.tally.frames  # a foxglove.Log line per frame, and the scene
     assert stats.chunk_count >= 1
     assert "hexbench" in names and "hexbench.stats" in names
 
 
-def test_every_channel_has_json_and_a_schema(recorded):
+def test_every_channel_has_a_schema(recorded):
     with open(recorded.path, "rb") as f:
         summ = make_reader(f).get_summary()
+    kinds = set()
     for ch in summ.channels.values():
-        assert ch.message_encoding == "json"
-        if ch.topic.startswith(("frame/", "world/", "planner/", "meta", "event/")):
-            schema = summ.schemas[ch.schema_id]
-            assert schema.encoding == "jsonschema"
-            assert json.loads(schema.data)["type"] == "object"
+        schema = summ.schemas[ch.schema_id]  # no schemaless channel (id 0)
+        kinds.add((ch.message_encoding, schema.encoding))
+        if ch.message_encoding == "json":
+            assert schema.encoding == "jsonschema" and isinstance(json.loads(schema.data), dict)
+            if ch.topic.startswith(("frame/", "world/pose", "world/actuators", "planner/", "meta", "event/")):
+                assert json.loads(schema.data)["type"] == "object"
+        else:
+            assert ch.topic.startswith("foxglove/") and schema.name.startswith("foxglove.")
+    assert kinds == {("json", "jsonschema"), ("protobuf", "protobuf")}
 
 
 def test_rerun_mcap_check_accepts_the_file(recorded, rerun_bin):
@@ -90,10 +98,13 @@ def test_metadata_has_run_and_versions(recorded):
     assert meta["argv"] == ["synthetic"]
 
 
-def test_log_time_is_sim_time(recorded):
+def test_log_time_is_the_start_instant_plus_sim_time(recorded):
     from recordings.reader import iter_samples
+    meta = read_metadata(recorded.path)
+    start = meta["start_time_ns"]
+    assert start > 1_700_000_000 * 10**9 and meta["start_time"].startswith("20")  # a real date
     for s in iter_samples(recorded.path, [t for t in recorded.tally.by_topic if t.startswith("frame/")]):
-        assert s.log_time_ns == s.json()["sim_time_ns"]
+        assert s.log_time_ns == start + s.json()["sim_time_ns"]
         assert s.publish_time_ns == s.json()["wall_time_ns"]
 
 

@@ -30,16 +30,39 @@ def test_info_missing_file(tmp_path, capsys):
     assert "no recording" in capsys.readouterr().err
 
 
-def test_info_tells_the_boot_handshake_from_errors(tmp_path, capsys):
-    """The control board repeats 'R' on UART0 while the comm board blinks: those overruns are
-    a healthy boot, and info says so instead of counting them as errors."""
+def test_info_tells_expected_events_from_errors(tmp_path, capsys):
+    """A healthy pair run makes overruns (the boot handshake's 'R's) and collisions (boot
+    banners, and the answers to the first Select, which every module still acknowledges):
+    info counts them as expected, each with its reason, and finds no error."""
     out = tmp_path / "pair.mcap"
     assert main(["run", "pair", "--planner", "thesis-serial", "--clock", "virtual",
                  "--record", str(out)]) == 0
     capsys.readouterr()
     assert main(["info", str(out)]) == 0
     text = capsys.readouterr().out
-    expected = int(text.split("expected:   uart-overrun ")[1].split()[0])
-    assert expected > 0 and "boot handshake" in text
+    expected = {line.split()[1]: int(line.split()[2]) for line in text.splitlines() if line.startswith("expected:")}
+    assert expected["boot-handshake"] > 0 and expected["all-answer"] > 0
+    assert "boot handshake" in text and "every module answers every command" in text
     frames_line = next(line for line in text.splitlines() if line.startswith("frames:"))
-    assert f"(and {expected} expected)" in frames_line
+    assert f"errors 0 (and {sum(expected.values())} expected)" in frames_line
+    assert "errors:     none" in text
+    assert main(["info", str(out), "--json"]) == 0
+    health = json.loads(capsys.readouterr().out)["health"]
+    assert health == {"errors": {}, "expected": dict(sorted(expected.items()))}
+
+
+def test_what_makes_an_event_an_error():
+    from recordings.health import PcTimeline, reason
+    pc = PcTimeline(first_command_ns=9_000, all_answer_until_ns=10_000)
+    assert reason({"kind": "uart-overrun", "uart": "uart0", "lost": 0x52, "sim_time_ns": 5}, pc) == "boot-handshake"
+    assert reason({"kind": "uart-overrun", "uart": "uart0", "lost": 0x2A, "sim_time_ns": 5}, pc) is None
+    assert reason({"kind": "uart-overrun", "uart": "uart1", "lost": 1, "channel": 3, "sim_time_ns": 50_000}, pc) == "side-light"
+    assert reason({"kind": "uart-overrun", "uart": "uart1", "lost": 1, "channel": 0, "sim_time_ns": 50_000}, pc) is None
+    assert reason({"kind": "uart-overrun", "uart": "uart1", "lost": 1, "sim_time_ns": 50_000}, pc) is None  # old files
+    assert reason({"kind": "collision", "receiver": "m3", "sim_time_ns": 8_000}, pc) == "boot-banners"
+    assert reason({"kind": "collision", "receiver": "m3", "sim_time_ns": 9_500}, pc) is None
+    assert reason({"kind": "collision", "receiver": "pc", "sim_time_ns": 9_500}, pc) == "all-answer"
+    assert reason({"kind": "rx-noise", "src": "pc", "sim_time_ns": 10_000}, pc) == "all-answer"
+    assert reason({"kind": "rx-noise", "src": "pc", "sim_time_ns": 10_001}, pc) is None  # data lost
+    assert reason({"kind": "rx-noise", "src": "pc", "sim_time_ns": 10**12}, PcTimeline(9_000, None)) == "all-answer"
+    assert reason({"kind": "timeout", "src": "pc", "sim_time_ns": 1}, pc) is None

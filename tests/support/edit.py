@@ -29,7 +29,7 @@ def rewrite(src: str | Path, dst: str | Path, edit: Edit, *, compression: str = 
     try:
         sink = McapSink(Path(dst), fleet=fleet, compression=compression)
         for rf in files:
-            for s in rf.samples():
+            for s in rf.samples(derived=True):
                 data = edit(s)
                 if data is not s.data:
                     changed += 1

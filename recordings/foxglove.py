@@ -1,0 +1,232 @@
+"""Foxglove's view of a run: the lattice as ``foxglove.SceneUpdate``, frames as ``foxglove.Log``.
+
+Built with Foxglove's own SDK (``foxglove-sdk``: its message classes and their protobuf
+schemas), so the Foxglove app's 3D and Log panels open a recording, or a live run, with no
+converter. One :class:`SceneView` and one :class:`FrameLog` serve both places: the recorder
+writes their messages into the MCAP file beside the bus's JSON channels
+(:data:`recordings.schemas.SCENE_TOPIC`, :data:`~recordings.schemas.LOG_TOPIC`), and the
+live server (:mod:`recordings.live_foxglove`) sends them over Foxglove's WebSocket protocol.
+
+The scene, in frame ``lattice`` (the lattice plane, z up, one cell across ≈ 1): each module a
+hexagonal prism at its pose in its own colour (the fixed module grey, a module in the middle
+of a move yellow), its six magnets as coloured bars (red +, blue −, grey off), its joints as
+spheres (orange: solenoid open), a label; the goal cells outlined in green. An update carries
+the entities that changed; :meth:`SceneView.snapshot` carries all of them (the recorder
+writes one when it closes, so the last scene message is the whole final state).
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from typing import Any, Iterable
+
+from foxglove.messages import (Color, KeyValuePair, LinePrimitive, LinePrimitiveLineType, Log, LogLevel,
+                               Point3, Pose as FoxPose, Quaternion, SceneEntity, SceneUpdate, SpherePrimitive,
+                               TextPrimitive, Timestamp, TriangleListPrimitive, Vector3)
+
+from bus.codec import Kind
+from bus.envelope import Envelope
+from bus.lattice import Cell
+from bus.messages import Actuators, PlannerState, Pose, WorldEvent
+
+from .lines import FrameLines
+from .scene import (FIXED, GOAL, JOINT_CLOSED, JOINT_INSET, JOINT_OPEN, MAGNET_COLOURS, MAGNET_INSET, MOVING,
+                    Placement, module_colour, rest)
+
+FRAME_ID = "lattice"
+HEIGHT = 0.25  # prism height, in cell units
+_NO_TURN = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
+_IDENTITY = FoxPose(position=Vector3(x=0.0, y=0.0, z=0.0), orientation=_NO_TURN)
+
+
+def timestamp(t_ns: int) -> Timestamp:
+    return Timestamp(sec=t_ns // 1_000_000_000, nsec=t_ns % 1_000_000_000)
+
+
+def _colour(rgb: tuple[int, int, int], a: float = 1.0) -> Color:
+    return Color(r=rgb[0] / 255, g=rgb[1] / 255, b=rgb[2] / 255, a=a)
+
+
+def _shade(rgb: tuple[int, int, int], f: float) -> tuple[int, int, int]:
+    return (int(rgb[0] * f), int(rgb[1] * f), int(rgb[2] * f))
+
+
+class _Module:
+    """What the scene knows of one module."""
+
+    __slots__ = ("name", "placement", "fixed", "real", "actuators", "moving")
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self.placement: Placement | None = None
+        self.fixed = False
+        self.real = False
+        self.actuators: Actuators | None = None
+        self.moving = False
+
+
+class SceneView:
+    """World and planner records in, encoded ``foxglove.SceneUpdate`` messages out."""
+
+    def __init__(self) -> None:
+        self.modules: dict[str, _Module] = {}
+        self.goal: list[tuple[int, int]] = []
+
+    def _module(self, name: str) -> _Module:
+        m = self.modules.get(name)
+        if m is None:
+            m = self.modules[name] = _Module(name)
+        return m
+
+    def feed(self, value: Any, t_ns: int) -> bytes | None:
+        """Take one typed record; the update it causes (None if the picture did not change)."""
+        if isinstance(value, Pose):
+            m = self._module(value.module)
+            m.placement = rest(Cell(value.x, value.y), value.orientation)
+            m.fixed, m.real, m.moving = bool(value.fixed), value.kind == "real", False
+            return self._update(t_ns, [self._entity(m, t_ns)])
+        if isinstance(value, Actuators):
+            m = self._module(value.module)
+            before = m.actuators
+            m.actuators = value
+            if m.placement is None or (before is not None and before.magnets == value.magnets
+                                       and before.joints_open == value.joints_open):
+                return None  # LEDs and ports only: not drawn in the scene
+            return self._update(t_ns, [self._entity(m, t_ns)])
+        if isinstance(value, WorldEvent) and value.kind == "move-started" and value.module:
+            m = self._module(value.module)
+            m.moving = True
+            return self._update(t_ns, [self._entity(m, t_ns)]) if m.placement is not None else None
+        if isinstance(value, PlannerState):
+            goal = [(int(c[0]), int(c[1])) for c in value.goal]
+            if goal == self.goal:
+                return None
+            self.goal = goal
+            return self._update(t_ns, [self._goal(t_ns)])
+        return None
+
+    def snapshot(self, t_ns: int) -> bytes:
+        """Every module and the goal, as they are now."""
+        entities = [self._entity(m, t_ns) for m in self.modules.values() if m.placement is not None]
+        if self.goal:
+            entities.append(self._goal(t_ns))
+        return self._update(t_ns, entities)
+
+    # -- entities -------------------------------------------------------------------------------------
+    @staticmethod
+    def _update(t_ns: int, entities: list[SceneEntity]) -> bytes:
+        return SceneUpdate(entities=entities).encode()
+
+    def _entity(self, m: _Module, t_ns: int) -> SceneEntity:
+        p = m.placement
+        assert p is not None
+        body = MOVING if m.moving else FIXED if m.fixed else module_colour(m.name)
+        act = m.actuators
+        magnets = tuple(act.magnets[:6]) if act is not None else ()
+        opened = tuple(bool(o) for o in act.joints_open[:6]) if act is not None else ()
+        label = m.name + (" fixed" if m.fixed else "") + (" real" if m.real else "") + (" moving" if m.moving else "")
+        prism, outline, text = _body(p, body, label)
+        return SceneEntity(
+            timestamp=timestamp(t_ns), frame_id=FRAME_ID, id=m.name,
+            metadata=[KeyValuePair(key="cell", value=f"{p.cell.x},{p.cell.y}"),
+                      KeyValuePair(key="orientation", value=str(p.orientation)),
+                      KeyValuePair(key="kind", value="real" if m.real else "virtual"),
+                      KeyValuePair(key="fixed", value=str(m.fixed).lower())],
+            triangles=[prism], lines=[outline, _magnets(p, magnets)], spheres=_joints(p, opened), texts=[text])
+
+    def _goal(self, t_ns: int) -> SceneEntity:
+        loops = [LinePrimitive(type=LinePrimitiveLineType.LineLoop, pose=_IDENTITY, thickness=0.03,
+                               points=[Point3(x=float(x), y=float(y), z=0.005) for x, y in Cell(*c).vertices()],
+                               color=_colour(GOAL)) for c in self.goal]
+        return SceneEntity(timestamp=timestamp(t_ns), frame_id=FRAME_ID, id="goal", lines=loops,
+                           metadata=[KeyValuePair(key="cells", value=" ".join(f"{x},{y}" for x, y in self.goal))])
+
+
+# A module's parts depend on few things and repeat all run long (a resting module's magnets
+# switch between a handful of states): each is built once per distinct input. Building one
+# from scratch is ~200 µs of small SDK objects; a cached one is reused as it is.
+@lru_cache(maxsize=4096)
+def _body(p: Placement, colour: tuple[int, int, int], label: str) -> tuple[TriangleListPrimitive, LinePrimitive,
+                                                                          TextPrimitive]:
+    """The prism (top face as a fan, each wall as two triangles), its outline and its label."""
+    top = [(float(x), float(y)) for x, y in p.outline()[:6]]
+    cx, cy = (float(v) for v in p.centre())
+    tris: list[Point3] = []
+    for i in range(6):
+        (ax, ay), (bx, by) = top[i], top[(i + 1) % 6]
+        tris += [Point3(x=cx, y=cy, z=HEIGHT), Point3(x=ax, y=ay, z=HEIGHT), Point3(x=bx, y=by, z=HEIGHT)]
+        tris += [Point3(x=ax, y=ay, z=0.0), Point3(x=bx, y=by, z=0.0), Point3(x=bx, y=by, z=HEIGHT),
+                 Point3(x=ax, y=ay, z=0.0), Point3(x=bx, y=by, z=HEIGHT), Point3(x=ax, y=ay, z=HEIGHT)]
+    z = HEIGHT + 0.01
+    return (TriangleListPrimitive(pose=_IDENTITY, points=tris, color=_colour(colour)),
+            LinePrimitive(type=LinePrimitiveLineType.LineLoop, pose=_IDENTITY, thickness=0.02,
+                          points=[Point3(x=x, y=y, z=z) for x, y in top], color=_colour(_shade(colour, 0.5))),
+            TextPrimitive(pose=FoxPose(position=Vector3(x=cx, y=cy, z=z + 0.05), orientation=_NO_TURN),
+                          billboard=True, font_size=14.0, scale_invariant=True,
+                          color=_colour((255, 255, 255)), text=label))
+
+
+@lru_cache(maxsize=16384)
+def _magnets(p: Placement, magnets: tuple[int, ...]) -> LinePrimitive:
+    """S1..S6 as bars along the sides: red +, blue -, grey off, magenta both relays (a fault)."""
+    states = list(magnets) + [0] * (6 - len(magnets))
+    z = HEIGHT + 0.01
+    bars: list[Point3] = []
+    colours: list[Color] = []
+    for (a, b), state in zip(p.side_segments(MAGNET_INSET), states):
+        c = _colour(MAGNET_COLOURS.get(state, MAGNET_COLOURS[2]))
+        bars += [Point3(x=float(a[0]), y=float(a[1]), z=z), Point3(x=float(b[0]), y=float(b[1]), z=z)]
+        colours += [c, c]
+    return LinePrimitive(type=LinePrimitiveLineType.LineList, pose=_IDENTITY, thickness=0.06,
+                         points=bars, colors=colours)
+
+
+@lru_cache(maxsize=16384)
+def _joints(p: Placement, opened: tuple[bool, ...]) -> list[SpherePrimitive]:
+    """J1..J6 as spheres: large and orange while the solenoid holds the joint open."""
+    states = list(opened) + [False] * (6 - len(opened))
+    z = HEIGHT + 0.01
+    return [SpherePrimitive(pose=FoxPose(position=Vector3(x=float(j[0]), y=float(j[1]), z=z), orientation=_NO_TURN),
+                            size=Vector3(x=s, y=s, z=s), color=_colour(JOINT_OPEN if o else JOINT_CLOSED))
+            for j, o in zip(p.joint_points(JOINT_INSET), states) for s in [0.14 if o else 0.08]]
+
+
+class FrameLog:
+    """Frames in, encoded ``foxglove.Log`` messages out (one line per frame, as the replay's)."""
+
+    def __init__(self) -> None:
+        self.lines = FrameLines()
+        self._seen: dict[tuple[bytes, str | None], tuple[str, LogLevel, str]] = {}
+
+    def log(self, env: Envelope, t_ns: int) -> bytes:
+        level = LogLevel.Warning if env.kind == Kind.NOISE.value else LogLevel.Info
+        return Log(timestamp=timestamp(t_ns), level=level, message=self.lines.line(env),
+                   name=f"{env.link}/{env.src}").encode()
+
+    def log_payload(self, payload: bytes, kind: str | None, t_ns: int) -> bytes:
+        """The same from a frame's JSON as it came from the bus, decoded only the first time
+        its line is seen: an envelope's fields before its times (link, src, dst, raw) and its
+        kind decide the line. ``ValueError``/``KeyError``/``TypeError`` if it is no envelope."""
+        cut = payload.find(b',"sim_time_ns"')
+        key = (payload[:cut], kind) if cut > 0 and b'"raw":' in payload[:cut] else None
+        hit = self._seen.get(key) if key is not None else None
+        if hit is None:
+            env = Envelope.from_json(payload)
+            hit = (self.lines.line(env), LogLevel.Warning if env.kind == Kind.NOISE.value else LogLevel.Info,
+                   f"{env.link}/{env.src}")
+            if key is not None:
+                if len(self._seen) > 65536:  # a long run of ever-new frames: start over
+                    self._seen.clear()
+                self._seen[key] = hit
+        line, level, name = hit
+        return Log(timestamp=timestamp(t_ns), level=level, message=line, name=name).encode()
+
+
+def module_cells(update: Any) -> Iterable[tuple[str, tuple[int, int]]]:
+    """``(module, cell)`` of every module entity in a decoded SceneUpdate (any protobuf
+    decoding of it, e.g. ``mcap_protobuf.decoder``'s)."""
+    for e in update.entities:
+        meta = {kv.key: kv.value for kv in e.metadata}
+        if "cell" in meta:
+            x, y = meta["cell"].split(",")
+            yield e.id, (int(x), int(y))
