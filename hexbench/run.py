@@ -15,6 +15,7 @@ from pathlib import Path
 from bus import UsageError, add_bus_arguments, open_bus
 
 from .args import instant
+from .live import add_live_argument, start_live
 
 
 def add_run_arguments(p: argparse.ArgumentParser, *, with_fleet: bool) -> None:
@@ -53,6 +54,7 @@ def add_run_arguments(p: argparse.ArgumentParser, *, with_fleet: bool) -> None:
         p.add_argument("--hil-port", metavar="URL",
                        help="the central IR transceiver of the scenario's real modules (any "
                             "pyserial URL); default: their 'port' in the scenario")
+    add_live_argument(p)
     add_bus_arguments(p)
 
 
@@ -182,6 +184,7 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
     bus = open_bus(args)
     clock = bus.clock
     recorder = None
+    lives: list = []
     bridges: list = []
     checks: list = []
     firmware: list = []
@@ -194,6 +197,7 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
             from recordings.recorder import Recorder
             recorder = Recorder(args.record, fleet=args.fleet, meta=meta, start_ns=getattr(args, "start_time", None))
             recorder.attach(bus)
+        lives = start_live(args.live, bus, meta=meta.to_dict())
         bus.put(bus.keys.meta, meta.to_json())
         since = clock.now_ns()
         print(f"run: scenario {scenario.name} ({len(scenario.modules)} modules, profile "
@@ -218,6 +222,8 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
             print(check.summary(), flush=True)
         print(result.summary(), flush=True)
     finally:
+        for close in lives:
+            close()
         for b in bridges:
             b.close()
         for fw in firmware:

@@ -11,6 +11,8 @@ import sys
 from bus import (Envelope, Framer, Link, UsageError, add_bus_arguments, encode_command, lookup,
                  open_bus, parse)
 
+from .live import add_live_argument, start_live
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("decode", help="decode hex bytes of a link into frames",
@@ -52,6 +54,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="one row per link and sender (last frame, counts, rate, errors), "
                         "updated in place, like can.viewer")
     p.add_argument("--seconds", type=float, help="stop after this many seconds")
+    add_live_argument(p)
     p.set_defaults(func=cmd_monitor)
 
     _add_demo(sub)
@@ -198,12 +201,17 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     def on_event(key: str, payload: bytes) -> None:
         print(f"{'':12} event {bus.keys.relative(key)} {payload.decode(errors='replace')}", flush=True)
 
+    lives = start_live(args.live, bus)
+    if lives:  # a late joiner: ask the world for its poses, so the live scene has every module
+        bus.put_json(bus.keys.world_sync, {"from": "monitor"})
     bus.subscribe_frames(on_frame)
     bus.subscribe(f"{bus.keys.root}/event/**", on_event)
     bus.subscribe(bus.keys.world_event, on_event)
     try:
         clock.run(timeout_s=args.seconds)
     finally:
+        for close in lives:
+            close()
         bus.close()
     return 0
 

@@ -17,6 +17,7 @@ writes one when it closes, so the last scene message is the whole final state).
 
 from __future__ import annotations
 
+import re
 from functools import lru_cache
 from typing import Any, Iterable
 
@@ -30,10 +31,13 @@ from bus.lattice import Cell
 from bus.messages import Actuators, PlannerState, Pose, WorldEvent
 
 from .lines import FrameLines
+from .schemas import kind_of
 from .scene import (FIXED, GOAL, JOINT_CLOSED, JOINT_INSET, JOINT_OPEN, MAGNET_COLOURS, MAGNET_INSET, MOVING,
                     Placement, module_colour, rest)
 
 FRAME_ID = "lattice"
+#: Bus keys (relative to the fleet root) the scene is drawn from.
+SCENE_TOPICS = ("world/pose/", "world/actuators/", "world/event", "planner/state")
 HEIGHT = 0.25  # prism height, in cell units
 _NO_TURN = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
 _IDENTITY = FoxPose(position=Vector3(x=0.0, y=0.0, z=0.0), orientation=_NO_TURN)
@@ -104,6 +108,15 @@ class SceneView:
             self.goal = goal
             return self._update(t_ns, [self._goal(t_ns)])
         return None
+
+    def feed_record(self, topic: str, obj: Any, t_ns: int) -> bytes | None:
+        """The same from a decoded bus payload of ``topic`` (a :data:`SCENE_TOPICS` key); a
+        payload that is not the record its key carries changes nothing."""
+        try:
+            value = kind_of(topic).decode(obj)
+        except (ValueError, KeyError, TypeError, AttributeError):
+            return None
+        return self.feed(value, t_ns)
 
     def snapshot(self, t_ns: int) -> bytes:
         """Every module and the goal, as they are now."""
@@ -196,7 +209,7 @@ class FrameLog:
 
     def __init__(self) -> None:
         self.lines = FrameLines()
-        self._seen: dict[tuple[bytes, str | None], tuple[str, LogLevel, str]] = {}
+        self._seen: dict[tuple[bytes, str | None], bytes] = {}  # -> the encoded Log without its timestamp
 
     def log(self, env: Envelope, t_ns: int) -> bytes:
         level = LogLevel.Warning if env.kind == Kind.NOISE.value else LogLevel.Info
@@ -206,20 +219,58 @@ class FrameLog:
     def log_payload(self, payload: bytes, kind: str | None, t_ns: int) -> bytes:
         """The same from a frame's JSON as it came from the bus, decoded only the first time
         its line is seen: an envelope's fields before its times (link, src, dst, raw) and its
-        kind decide the line. ``ValueError``/``KeyError``/``TypeError`` if it is no envelope."""
+        kind decide the line. ``ValueError``/``KeyError``/``TypeError`` if it is no envelope.
+
+        The recorder's hot path (a Log per frame): the SDK encodes a line's level, text and name
+        once; per frame only the timestamp is encoded. Protobuf writes fields in number order and
+        the timestamp is field 1, so timestamp + the rest is byte for byte the SDK's own encoding
+        of the whole message (a test holds this)."""
         cut = payload.find(b',"sim_time_ns"')
+        if kind is None and cut > 0:
+            m = _KIND.search(payload, cut)
+            kind = m.group(1).decode() if m else None
         key = (payload[:cut], kind) if cut > 0 and b'"raw":' in payload[:cut] else None
-        hit = self._seen.get(key) if key is not None else None
-        if hit is None:
+        rest = self._seen.get(key) if key is not None else None
+        if rest is None:
             env = Envelope.from_json(payload)
-            hit = (self.lines.line(env), LogLevel.Warning if env.kind == Kind.NOISE.value else LogLevel.Info,
-                   f"{env.link}/{env.src}")
+            rest = Log(level=LogLevel.Warning if env.kind == Kind.NOISE.value else LogLevel.Info,
+                       message=self.lines.line(env), name=f"{env.link}/{env.src}").encode()
             if key is not None:
                 if len(self._seen) > 65536:  # a long run of ever-new frames: start over
                     self._seen.clear()
-                self._seen[key] = hit
-        line, level, name = hit
-        return Log(timestamp=timestamp(t_ns), level=level, message=line, name=name).encode()
+                self._seen[key] = rest
+        return timestamp_field(t_ns) + rest
+
+
+_KIND = re.compile(rb'"kind":"([a-z0-9_-]*)"')
+
+
+def _varint(n: int) -> bytes:
+    if n < 1 << 28:  # nanoseconds and most seconds fields: unrolled (this runs once per frame)
+        if n < 1 << 14:
+            return bytes((n,)) if n < 0x80 else bytes((n & 0x7F | 0x80, n >> 7))
+        if n < 1 << 21:
+            return bytes((n & 0x7F | 0x80, n >> 7 & 0x7F | 0x80, n >> 14))
+        return bytes((n & 0x7F | 0x80, n >> 7 & 0x7F | 0x80, n >> 14 & 0x7F | 0x80, n >> 21))
+    out = bytearray()
+    while n > 0x7F:
+        out.append((n & 0x7F) | 0x80)
+        n >>= 7
+    out.append(n)
+    return bytes(out)
+
+
+@lru_cache(maxsize=64)
+def _seconds(sec: int) -> bytes:
+    return b"\x08" + _varint(sec) if sec else b""
+
+
+def timestamp_field(t_ns: int) -> bytes:
+    """Field 1 of a Foxglove message (``timestamp``, a ``google.protobuf.Timestamp``), encoded:
+    what the SDK writes for ``timestamp=timestamp(t_ns)`` (zero fields are left out)."""
+    sec, nsec = divmod(t_ns, 1_000_000_000)
+    inner = _seconds(sec) + (b"\x10" + _varint(nsec) if nsec else b"")
+    return b"\x0a" + _varint(len(inner)) + inner
 
 
 def module_cells(update: Any) -> Iterable[tuple[str, tuple[int, int]]]:

@@ -35,13 +35,12 @@ from bus.keys import Keys
 from bus.messages import RunMeta
 
 from . import meta as meta_mod
-from .foxglove import FrameLog, SceneView
+from .foxglove import SCENE_TOPICS, FrameLog, SceneView
 from .schemas import FRAME, IR_LIGHT, LOG_TOPIC, RECORDER_ERROR_TOPIC, SCENE_TOPIC, UNTYPED, kind_of
 from .sink import CHUNK_SIZE, McapSink
 from .stats import Tally, kind_field
 
 TimeSource = Literal["auto", "sim", "wall"]
-_SCENE_TOPICS = ("world/pose/", "world/actuators/", "world/event", "planner/state")
 _CHECK_SIZE_EVERY = 64  # messages between file-size checks (tell() is a syscall)
 _decode = json.JSONDecoder().decode  # skips json.loads' encoding sniffing (payloads are UTF-8)
 _INT = re.compile(rb"\s*(-?\d+)\s*[,}]")
@@ -244,7 +243,7 @@ class Recorder:
                 self._last_sim_ns = sim
             log_time = wall if self.time_source == "wall" else self._origin + (self._last_sim_ns if sim is None else sim)
             self._write_locked(topic, payload, obj, log_time, pub if isinstance(pub, int) else wall)
-            if self._scene is not None and topic.startswith(_SCENE_TOPICS):
+            if self._scene is not None and topic.startswith(SCENE_TOPICS):
                 self._to_scene(topic, obj, log_time)
             if topic == "meta" and isinstance(obj, dict) and not self._closed:
                 self.meta = meta_mod.merge(self.meta, RunMeta.from_dict(obj))
@@ -275,12 +274,8 @@ class Recorder:
     def _to_scene(self, topic: str, obj: Any, log_time: int) -> None:
         if self._closed:
             return
-        try:
-            value = kind_of(topic).decode(obj)
-        except (ValueError, KeyError, TypeError):
-            return  # recorded as it came; the scene just does not change
         assert self._scene is not None
-        update = self._scene.feed(value, log_time)
+        update = self._scene.feed_record(topic, obj, log_time)
         if update is not None:
             self._derived(SCENE_TOPIC, update, log_time)
 

@@ -1,0 +1,143 @@
+"""A run served live to the Foxglove app over Foxglove's WebSocket protocol (foxglove-sdk's server).
+
+The same channels as a recording (:mod:`recordings.recorder`): every bus key as a JSON channel with
+its JSON Schema (:mod:`recordings.schemas`), the scene (``foxglove/scene``,
+``foxglove.SceneUpdate``) and the frame log (``foxglove/log``, ``foxglove.Log``) made by
+:mod:`recordings.foxglove`. Open ``ws://127.0.0.1:8765`` in Foxglove ("Open connection" →
+Foxglove WebSocket). Loopback by default: the server has no authentication.
+
+Times are those of the recording: a start instant plus sim time on the virtual clock, the wall
+clock otherwise. A client that connects late gets each channel's messages from then on, plus the
+whole scene again (a snapshot is sent on every new subscription to the scene).
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from typing import Any
+
+import foxglove
+from foxglove import Channel, Schema
+
+from bus.keys import Keys
+
+from .foxglove import SCENE_TOPICS, FrameLog, SceneView
+from .schemas import LOG_TOPIC, SCENE_TOPIC, kind_of
+
+DEFAULT_HOST = "127.0.0.1"
+DEFAULT_PORT = 8765
+
+
+class LiveFoxglove:
+    """Serves bus samples of one fleet on a Foxglove WebSocket while a run goes.
+
+    ``port=0`` takes a free port (see :attr:`port`). Thread-safe: samples may come from any
+    thread; the SDK's server sends them from its own."""
+
+    def __init__(self, *, fleet: str = "default", host: str = DEFAULT_HOST, port: int = DEFAULT_PORT,
+                 name: str = "hexbench", start_ns: int | None = None) -> None:
+        self.keys = Keys(fleet)
+        self.start_ns = time.time_ns() // 1_000_000 * 1_000_000 if start_ns is None else start_ns
+        self._origin: int | None = None  # start_ns on a virtual clock, None: wall time
+        self._context = foxglove.Context()
+        self._channels: dict[str, Channel] = {}
+        self._scene = SceneView()
+        self._log = FrameLog()
+        self._lock = threading.Lock()
+        self._last_ns = 0
+        self._closed = False
+        self._server = foxglove.start_server(name=name, host=host, port=port, context=self._context,
+                                             server_listener=_Listener(self))
+        self.port: int = self._server.port
+        self.host = host
+
+    @property
+    def url(self) -> str:
+        return f"ws://{self.host}:{self.port}"
+
+    def attach(self, bus: Any) -> None:
+        """Serve everything of ``bus``'s fleet (a :class:`bus.transport.Bus`)."""
+        if bus.keys.root != self.keys.root:
+            raise ValueError(f"live view is for {self.keys.root}, bus is {bus.keys.root}")
+        self._origin = self.start_ns if getattr(bus.clock, "kind", "") == "virtual" else None
+        bus.subscribe(self.keys.all, self.on_sample)
+
+    # -- samples -----------------------------------------------------------------------------------
+    def _channel(self, topic: str) -> Channel:
+        ch = self._channels.get(topic)
+        if ch is None:
+            kind = kind_of(topic)
+            schema = Schema(name=kind.name, encoding=kind.schema_encoding, data=kind.schema_bytes)
+            ch = self._channels[topic] = Channel(topic, schema=schema, message_encoding=kind.message_encoding,
+                                                 context=self._context)
+        return ch
+
+    def on_sample(self, key: str, payload: bytes) -> None:
+        """Bus handler: serve one sample (never raises on a bad payload: it is served as it came)."""
+        topic = self.keys.relative(key)
+        with self._lock:
+            if self._closed:
+                return
+            t = self._time(payload)
+            self._channel(topic).log(payload, log_time=t)
+            if topic.startswith("frame/"):
+                try:
+                    self._channel(LOG_TOPIC).log(self._log.log_payload(payload, None, t), log_time=t)
+                except (ValueError, KeyError, TypeError):
+                    pass
+            elif topic.startswith(SCENE_TOPICS):
+                try:
+                    obj = json.loads(payload)
+                except ValueError:
+                    return
+                update = self._scene.feed_record(topic, obj, t)
+                if update is not None:
+                    self._channel(SCENE_TOPIC).log(update, log_time=t)
+
+    def _time(self, payload: bytes) -> int:
+        if self._origin is None:
+            t = time.time_ns()
+        else:
+            i = payload.find(b'"sim_time_ns":')
+            t = self._last_ns
+            if i >= 0:
+                end = i + 14
+                while end < len(payload) and payload[end:end + 1].isdigit():
+                    end += 1
+                if end > i + 14:
+                    t = self._origin + int(payload[i + 14:end])
+        self._last_ns = max(self._last_ns, t)
+        return t
+
+    def snapshot(self) -> None:
+        """Send the whole scene again (a new viewer sees every module at once)."""
+        with self._lock:
+            if self._scene.modules and not self._closed:
+                self._channel(SCENE_TOPIC).log(self._scene.snapshot(self._last_ns), log_time=self._last_ns)
+
+    def close(self) -> None:
+        """Stop serving (clients are disconnected)."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+        self._server.stop()
+
+    def __enter__(self) -> "LiveFoxglove":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class _Listener(foxglove.ServerListener):
+    """A client subscribing to the scene gets the whole scene at once."""
+
+    def __init__(self, live: LiveFoxglove) -> None:
+        self._live = live
+
+    def on_subscribe(self, client: Any, channel: Any) -> None:
+        if channel.topic == SCENE_TOPIC:  # off the server's thread: snapshot() takes the lock
+            threading.Thread(target=self._live.snapshot, name="foxglove-snapshot", daemon=True).start()

@@ -1,0 +1,117 @@
+"""``--live foxglove``: a wall-clock run served on a Foxglove WebSocket, read by a WebSocket
+client from PyPI (``websockets``) speaking Foxglove's protocol on loopback, as the app does."""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import json
+import struct
+import time
+from typing import Callable
+
+import pytest
+from mcap.records import Schema
+from mcap_protobuf.decoder import DecoderFactory
+
+from processes import free_port, hexbench, wall_fleet
+from recordings.foxglove import module_cells
+
+websockets = pytest.importorskip("websockets")
+
+SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
+
+
+async def _scenes(url: str, deadline: float, enough: Callable[[dict[str, tuple[int, int]]], bool]
+                  ) -> tuple[dict, dict, dict[str, tuple[int, int]]]:
+    """Subscribe to the scene as the Foxglove app does and read scene messages until the module
+    cells seen so far are ``enough``: (serverInfo, the scene's advertisement, the cells)."""
+    while True:  # the server starts with the run: try until it listens
+        try:
+            ws = await websockets.connect(url, subprotocols=SUBPROTOCOLS, max_size=None)
+            break
+        except OSError:
+            if time.monotonic() > deadline:
+                raise
+            await asyncio.sleep(0.2)
+    async with ws:
+        info: dict = {}
+        channels: dict[int, dict] = {}
+        scene: dict | None = None
+        decode = None
+        cells: dict[str, tuple[int, int]] = {}
+        while time.monotonic() < deadline:
+            try:
+                msg = await asyncio.wait_for(ws.recv(), timeout=max(0.1, deadline - time.monotonic()))
+            except asyncio.TimeoutError:
+                break
+            if isinstance(msg, str):
+                d = json.loads(msg)
+                if d["op"] == "serverInfo":
+                    info = d
+                elif d["op"] == "advertise":
+                    for ch in d["channels"]:
+                        channels[ch["id"]] = ch
+                if scene is None:
+                    scene = next((c for c in channels.values() if c["topic"] == "foxglove/scene"), None)
+                    if scene is not None:
+                        schema = Schema(id=1, name=scene["schemaName"], encoding="protobuf",
+                                        data=base64.b64decode(scene["schema"]))
+                        decode = DecoderFactory().decoder_for("protobuf", schema)
+                        await ws.send(json.dumps({"op": "subscribe",
+                                                  "subscriptions": [{"id": 1, "channelId": scene["id"]}]}))
+            elif msg[0] == 0x01:  # message data: opcode, subscription id (u32), log time (u64), payload
+                sub, _ = struct.unpack_from("<IQ", msg, 1)
+                assert sub == 1 and decode is not None
+                cells.update(module_cells(decode(bytes(msg[13:]))))
+                if enough(cells):
+                    return info, scene, cells
+    raise AssertionError(f"scene not complete before the deadline: cells {cells}; "
+                         f"channels {sorted(c['topic'] for c in channels.values())}")
+
+
+def _watch(url: str, proc, enough, seconds: float = 60):
+    try:
+        return asyncio.run(_scenes(url, time.monotonic() + seconds, enough))
+    except (OSError, AssertionError) as exc:
+        proc.kill()
+        raise AssertionError(f"{exc}\n{proc.communicate(timeout=30)[0]}") from None
+
+
+def test_a_wall_clock_run_is_served_to_foxglove():
+    port = free_port()
+    proc = hexbench("run", "thesis-6", "--clock", "wall", "--live", f"foxglove=127.0.0.1:{port}",
+                    "--listen", f"tcp/127.0.0.1:{free_port()}", "--fleet", f"fox{port}")
+    try:
+        info, scene, cells = _watch(f"ws://127.0.0.1:{port}", proc, lambda c: len(c) == 6)
+    finally:
+        proc.terminate()
+        out = proc.communicate(timeout=30)[0]
+    assert info.get("name") == "hexbench", out
+    assert scene["schemaName"] == "foxglove.SceneUpdate" and scene["encoding"] == "protobuf"
+    assert set(cells) == {f"m{i}" for i in range(1, 7)}
+    assert "live: Foxglove WebSocket on ws://127.0.0.1:" in out
+
+
+def test_a_bad_live_spec_is_refused_in_one_line(capsys):
+    from hexbench.cli import main
+    with pytest.raises(SystemExit) as exc:
+        main(["run", "pair", "--live", "foxglove=nowhere"])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "foxglove=HOST:PORT" in err and "Traceback" not in err
+
+
+def test_monitor_serves_a_fleet_in_another_process_to_foxglove():
+    """``monitor --live foxglove`` joins late: it asks the world to republish its poses, so the
+    scene shows every module of the running fleet."""
+    bus_port, ws_port = free_port(), free_port()
+    fleet = wall_fleet("pair", bus_port, f"mon{bus_port}")
+    monitor = hexbench("monitor", "--connect", f"tcp/127.0.0.1:{bus_port}", "--fleet", f"mon{bus_port}",
+                       "--live", f"foxglove=127.0.0.1:{ws_port}", "--seconds", "60")
+    try:
+        _, _, cells = _watch(f"ws://127.0.0.1:{ws_port}", monitor, lambda c: len(c) == 2, seconds=45)
+    finally:
+        for p in (monitor, fleet):
+            p.terminate()
+            p.communicate(timeout=30)
+    assert cells == {"m1": (0, 0), "m2": (1, 0)}  # the pair at rest: nobody commands it
