@@ -5,12 +5,17 @@ frame as a text log per link, planner overlays, energy and frames-per-second plo
 Everything is gathered into columns first and sent with ``rr.send_columns`` (one call per
 entity and archetype): an order of magnitude faster than one ``rr.log`` per row.
 Timeline: ``sim_time`` (a duration, ns).
+
+The live view (:mod:`recordings.live_rerun`) draws with the same :class:`ReplayBuilder`, a flush
+at a time: :meth:`ReplayBuilder.render` takes a horizon, and each :class:`ModuleTrack` keeps
+its drawing state from one call to the next.
 """
 
 from __future__ import annotations
 
+import heapq
 import uuid
-from collections import Counter, defaultdict
+from collections import Counter, defaultdict, deque
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -20,29 +25,27 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from bus.codec import Frame, Kind, Link
+from bus.codec import Kind, Link
 from bus.envelope import Envelope
 from bus.lattice import Cell
 from bus.messages import Actuators, Energy, PlannerProgress, PlannerState, Pose, WorldEvent
 
 from .player import Player
 from .reader import Undecodable
-from .scene import (JOINT_INSET, LED_JOINT_INSET, LED_NEG_INSET, LED_POS_INSET, MAGNET_INSET, Move,
-                    Placement, rest)
+from .lines import FrameLines
+from .scene import (GOAL, JOINT_CLOSED, JOINT_INSET, JOINT_OPEN, LED_JOINT, LED_JOINT_INSET, LED_NEG,
+                    LED_NEG_INSET, LED_POS, LED_POS_INSET, MAGNET_COLOURS, MAGNET_INSET, Move, Placement,
+                    module_colour, rest)
 from .schemas import RECORDER_ERROR_TOPIC
 
 TIMELINE = "sim_time"
 APP_ID = "hexbench"
 
-# Colours (RGB).
+# Colours (RGB) of what only the replay draws; a module's own are recordings.scene's (every viewer's).
 GRID = (70, 70, 70)
-MAGNET = {1: (235, 60, 60), -1: (60, 110, 240), 0: (95, 95, 95), 2: (255, 0, 255)}
-JOINT_OPEN, JOINT_CLOSED = (255, 170, 0), (45, 45, 45)
-LED_POS, LED_NEG, LED_JOINT = (255, 80, 80), (90, 140, 255), (255, 230, 60)
+MAGNET = MAGNET_COLOURS
 IR_LIT = (255, 255, 150)
-PALETTE = [(120, 200, 255), (160, 230, 140), (250, 180, 120), (210, 160, 250), (250, 230, 120),
-           (130, 230, 220), (250, 150, 190), (190, 190, 190)]
-ELECTRON, VOID, POTENTIAL_VOID, PAIR, GOAL = (255, 220, 0), (20, 20, 20), (255, 140, 0), (255, 255, 255), (60, 220, 90)
+ELECTRON, VOID, POTENTIAL_VOID, PAIR = (255, 220, 0), (20, 20, 20), (255, 140, 0), (255, 255, 255)
 _IR_COLOURS = [[IR_LIT] * n for n in range(8)]
 _FRAME_ENTITY = {link.value: f"frames/{link.value}" for link in Link}
 #: Stops of the value-function colour map (dark blue -> teal -> yellow), by value 0..1.
@@ -168,39 +171,131 @@ class Scene:
         for (entity, _), cols in self._cols.items():
             cols.send(entity, rec)
 
+    def clear(self) -> None:
+        """Forget the rows gathered so far (a live view sends them a flush at a time)."""
+        self._cols.clear()
+
     @property
     def rows(self) -> int:
         return sum(len(c.times) for c in self._cols.values())
 
 
 # --- one module's track ------------------------------------------------------------------------
-@dataclass
 class ModuleTrack:
-    """Everything that changes how one module is drawn, gathered in time order."""
+    """One module's drawing: the events that change how it is drawn (poses, actuators, moves,
+    IR bursts), added in any order and painted in time order by :meth:`paint`.
 
-    name: str
-    events: list[tuple[int, int, str, Any]] = field(default_factory=list)  # (t, order, what, value)
+    The state it paints with (placement, actuators, the move in progress and its animation
+    frames still to draw, lit transceivers) carries over from one :meth:`paint` to the next, so
+    a replay (everything at once) and a live view (a flush at a time) draw the same rows.
+    """
+
+    def __init__(self, name: str, *, anim_step_ns: int = 20_000_000,
+                 ir_cache: dict[tuple[Placement, tuple[int, ...]], list[np.ndarray]] | None = None) -> None:
+        self.name = name
+        self.anim_step_ns = anim_step_ns
+        self.base = f"world/modules/{name}"
+        self.colour = module_colour(name)
+        self.real = False  # a real board (its body drawn from its twin's or its own bits) says so in its label
+        self._queue: list[tuple[int, int, str, Any]] = []  # heap of (t, order added, what, value)
+        self._added = 0
+        self._ir_strips = {} if ir_cache is None else ir_cache
+        self.placement: Placement | None = None
+        self.act: Actuators | None = None
+        self.move: Move | None = None
+        self.pending: deque[int] = deque()  # animation frames of the move not drawn yet
+        self.lit = [0] * 7  # bursts in flight per transceiver (0 centre, 1..6 sides)
 
     def add(self, t_ns: int, what: str, value: Any) -> None:
-        self.events.append((t_ns, len(self.events), what, value))
+        # The order added breaks ties of equal times (and keeps values from being compared).
+        heapq.heappush(self._queue, (t_ns, self._added, what, value))
+        self._added += 1
+        if what == "pose" and getattr(value, "kind", "") == "real":
+            self.real = True
 
+    @property
+    def label(self) -> str:
+        """The name drawn next to the outline."""
+        return f"{self.name} real" if self.real else self.name
 
-def _describe(env: Envelope) -> str:
-    try:
-        return Frame(Link(env.link), Kind(env.kind), env.raw, env.view).describe()
-    except (KeyError, ValueError, TypeError):  # a view we cannot print: show the bytes
-        return f"{env.kind or '?'} {env.raw.hex()}"
+    def paint(self, scene: Scene, until_ns: int | None = None) -> None:
+        """Draw the events before ``until_ns`` and the animation frames before it into
+        ``scene``; None: everything, including the rest of a move still running at the end.
 
+        Events added later with a time before an earlier ``until_ns`` are still drawn, at
+        their own times, but with the state reached by then: callers hold ``until_ns`` back
+        by the longest delay with which an event can arrive (an IR burst starts at its
+        frame's first byte, known only when the frame is complete)."""
+        q = self._queue
+        ir_rows = scene.columns(f"{self.base}/ir", rr.LineStrips2D)
+        while q and (until_ns is None or q[0][0] < until_ns):
+            t, _, what, value = heapq.heappop(q)
+            self._frames_before(scene, t)
+            if what == "pose":
+                self.move = None
+                self.pending.clear()
+                self.placement = rest(Cell(value.x, value.y), value.orientation)
+                scene.add(self.base, rr.AnyValues, t, x=[value.x], y=[value.y], orientation=[value.orientation])
+                self._draw(scene, t, self.placement)
+            elif what == "actuators":
+                self.act = value
+                if self.placement is not None:
+                    self._draw(scene, t, self.move.at(t) if self.move is not None else self.placement)
+            elif what == "move" and self.placement is not None:
+                self.move = Move.from_event(t, value, self.placement)
+                if self.move is not None:
+                    self.pending = deque(self.move.frame_times(self.anim_step_ns) + [self.move.end_ns])
+                    self._draw(scene, t, self.move.at(t))
+            elif what in ("ir-on", "ir-off") and self.placement is not None:
+                if 0 <= value < 7:
+                    self.lit[value] += 1 if what == "ir-on" else -1
+                here = self.move.at(t) if self.move is not None else self.placement
+                segs = self._ir(here, tuple(ch for ch in range(7) if self.lit[ch] > 0))
+                ir_rows.add_row(t, len(segs), strips=segs, colors=_IR_COLOURS[len(segs)])
+        self._frames_before(scene, until_ns)
 
-def _frame_line(env: Envelope, cache: dict[tuple[str, str, str, str, bytes], str]) -> str:
-    """The text-log line of a frame. A run repeats the same frames between the same
-    endpoints over and over (probes, MSG1, ACKs), so lines are made once per distinct
-    (link, src, dst, kind, bytes): the view is a function of the bytes."""
-    key = (env.link, env.src, env.dst, env.kind, env.raw)
-    line = cache.get(key)
-    if line is None:
-        line = cache[key] = f"{env.src} → {env.dst}  {_describe(env)}  [{env.raw.hex()}]"
-    return line
+    def _frames_before(self, scene: Scene, t_ns: int | None) -> None:
+        """The move's animation frames before ``t_ns`` (None: all of them)."""
+        pending = self.pending
+        while pending and (t_ns is None or pending[0] < t_ns):
+            ft = pending.popleft()
+            if self.move is not None:
+                self._draw(scene, ft, self.move.at(ft))
+
+    def _ir(self, here: Placement, channels: tuple[int, ...]) -> list[np.ndarray]:
+        """Lit IR segments of a placement (cached: a resting module lights the same ones often)."""
+        key = (here, channels)
+        segs = self._ir_strips.get(key)
+        if segs is None:
+            segs = [view_xy(here.ir_segment(ch)) for ch in channels]
+            if here.pivot is None:  # rotating placements are seen once
+                self._ir_strips[key] = segs
+        return segs
+
+    def _draw(self, s: Scene, t: int, p: Placement) -> None:
+        """The module at placement ``p``: outline, magnets, joints, LEDs (with its actuators)."""
+        base, act = self.base, self.act
+        s.add(base, rr.LineStrips2D, t, strips=[view_xy(p.outline())], colors=[self.colour], labels=[self.label])
+        magnets = act.magnets if act is not None else [0] * 6
+        s.add(f"{base}/magnets", rr.LineStrips2D, t, strips=list(view_xy(p.side_segments(MAGNET_INSET))),
+              colors=[MAGNET.get(m, MAGNET[2]) for m in magnets[:6]] + [MAGNET[0]] * (6 - len(magnets[:6])))
+        opened = act.joints_open if act is not None else [False] * 6
+        opened = list(opened[:6]) + [False] * (6 - len(opened[:6]))
+        s.add(f"{base}/joints", rr.Points2D, t, positions=view_xy(p.joint_points(JOINT_INSET)),
+              colors=[JOINT_OPEN if o else JOINT_CLOSED for o in opened],
+              radii=[0.07 if o else 0.04 for o in opened])
+        pts: list[np.ndarray] = []
+        cols: list[tuple[int, int, int]] = []
+        if act is not None:
+            for flags, where, c in ((act.led_pos, p.side_points(LED_POS_INSET), LED_POS),
+                                    (act.led_neg, p.side_points(LED_NEG_INSET), LED_NEG),
+                                    (act.led_joint, p.joint_points(LED_JOINT_INSET), LED_JOINT)):
+                for i, on in enumerate(flags[:6]):
+                    if on:
+                        pts.append(where[i])
+                        cols.append(c)
+        s.add(f"{base}/leds", rr.Points2D, t, positions=view_xy(np.array(pts)).reshape(-1, 2),
+              colors=cols, radii=[0.035] * len(pts))
 
 
 @lru_cache(maxsize=4096)
@@ -222,13 +317,14 @@ class ReplayBuilder:
         self.cells_seen: set[tuple[int, int]] = set()
         self.end_ns = 0
         self.frames = 0
-        self._lines: dict[tuple[str, str, str, str, bytes], str] = {}
+        self._lines = FrameLines()
         self._ir_strips: dict[tuple[Placement, tuple[int, ...]], list[np.ndarray]] = {}
+        self._fps_next: dict[str, int] = {}  # per link: the first bin not plotted yet
 
     def track(self, module: str) -> ModuleTrack:
         t = self.tracks.get(module)
         if t is None:
-            t = self.tracks[module] = ModuleTrack(module)
+            t = self.tracks[module] = ModuleTrack(module, anim_step_ns=self.anim_step_ns, ir_cache=self._ir_strips)
         return t
 
     # -- gathering ----------------------------------------------------------------------------------
@@ -266,7 +362,7 @@ class ReplayBuilder:
         self.frames += 1
         self.fps[env.link][t // self.fps_bin_ns] += 1
         level = "WARN" if env.kind == Kind.NOISE.value else "INFO"
-        self.scene.text(_FRAME_ENTITY.get(env.link) or f"frames/{env.link}", t, _frame_line(env, self._lines), level)
+        self.scene.text(_FRAME_ENTITY.get(env.link) or f"frames/{env.link}", t, self._lines.line(env), level)
         module = _module_of(env.src)
         if module is not None and env.channel is not None and env.link in (Link.SIDE.value, Link.CENTRE.value):
             start = t - max(0, env.sim_time_ns - env.first_byte_ns) if env.first_byte_ns is not None else t
@@ -302,97 +398,23 @@ class ReplayBuilder:
               colors=heat(ps.values[:n]), radii=[0.5] * n)
 
     # -- rendering the modules --------------------------------------------------------------------------
-    def render(self) -> Scene:
-        """Draw every module track, the grid and the frames-per-second series."""
+    def render(self, until_ns: int | None = None) -> Scene:
+        """Draw the module tracks and the frames-per-second series into :attr:`scene`.
+
+        ``until_ns`` None: everything (a replay, or the end of a live run). Otherwise only
+        what lies before it; the next call goes on from there (a live view, a flush at a time).
+        """
         for tr in self.tracks.values():
-            self._render_track(tr)
+            tr.paint(self.scene, until_ns)
         for link, bins in self.fps.items():
-            lo, hi = min(bins), max(bins)
-            for b in range(lo, hi + 2):  # one empty bin after the last: the line drops to 0
+            lo = self._fps_next.get(link, min(bins))
+            hi = max(bins) + 2  # one empty bin after the last: the line drops to 0
+            if until_ns is not None:
+                hi = min(hi, until_ns // self.fps_bin_ns)  # bins that are complete
+            for b in range(lo, hi):
                 self.scene.scalar(f"plots/fps/{link}", b * self.fps_bin_ns, bins.get(b, 0) * 1e9 / self.fps_bin_ns)
+            self._fps_next[link] = max(lo, hi)
         return self.scene
-
-    def _render_track(self, tr: ModuleTrack) -> None:
-        events = sorted(tr.events)
-        placement: Placement | None = None
-        act: Actuators | None = None
-        move: Move | None = None
-        lit = [0] * 7  # bursts in flight per transceiver (0 centre, 1..6 sides)
-        base = f"world/modules/{tr.name}"
-        ir_rows = self.scene.columns(f"{base}/ir", rr.LineStrips2D)
-        colour = PALETTE[(int(tr.name[1:]) - 1) % len(PALETTE)] if tr.name[1:].isdigit() else PALETTE[-1]
-        # a real board (its body drawn from its twin's or its own bits) says so in its label
-        real = any(what == "pose" and getattr(value, "kind", "") == "real" for _, _, what, value in events)
-        label = f"{tr.name} real" if real else tr.name
-
-        def draw(t: int, p: Placement) -> None:
-            self._draw_module(base, label, colour, t, p, act)
-
-        pending: list[int] = []
-        for t, _, what, value in events:
-            while pending and pending[0] < t:  # animation frames before this event
-                ft = pending.pop(0)
-                if move is not None:
-                    draw(ft, move.at(ft))
-            if what == "pose":
-                move, pending = None, []
-                placement = rest(Cell(value.x, value.y), value.orientation)
-                self.scene.add(base, rr.AnyValues, t, x=[value.x], y=[value.y],
-                               orientation=[value.orientation])
-                draw(t, placement)
-            elif what == "actuators":
-                act = value
-                if placement is not None:
-                    draw(t, move.at(t) if move is not None else placement)
-            elif what == "move" and placement is not None:
-                move = Move.from_event(t, value, placement)
-                if move is not None:
-                    pending = move.frame_times(self.anim_step_ns) + [move.end_ns]
-                    draw(t, move.at(t))
-            elif what in ("ir-on", "ir-off") and placement is not None:
-                if 0 <= value < 7:
-                    lit[value] += 1 if what == "ir-on" else -1
-                here = move.at(t) if move is not None else placement
-                segs = self._ir(here, tuple(ch for ch in range(7) if lit[ch] > 0))
-                ir_rows.add_row(t, len(segs), strips=segs, colors=_IR_COLOURS[len(segs)])
-        for ft in pending:  # a move still running when the recording ends
-            if move is not None:
-                draw(ft, move.at(ft))
-
-    def _ir(self, here: Placement, channels: tuple[int, ...]) -> list[np.ndarray]:
-        """Lit IR segments of a placement (cached: a resting module lights the same ones often)."""
-        key = (here, channels)
-        segs = self._ir_strips.get(key)
-        if segs is None:
-            segs = [view_xy(here.ir_segment(ch)) for ch in channels]
-            if here.pivot is None:  # rotating placements are seen once
-                self._ir_strips[key] = segs
-        return segs
-
-    def _draw_module(self, base: str, name: str, colour: tuple[int, int, int], t: int,
-                     p: Placement, act: Actuators | None) -> None:
-        s = self.scene
-        s.add(base, rr.LineStrips2D, t, strips=[view_xy(p.outline())], colors=[colour], labels=[name])
-        magnets = act.magnets if act is not None else [0] * 6
-        s.add(f"{base}/magnets", rr.LineStrips2D, t, strips=list(view_xy(p.side_segments(MAGNET_INSET))),
-              colors=[MAGNET.get(m, MAGNET[2]) for m in magnets[:6]] + [MAGNET[0]] * (6 - len(magnets[:6])))
-        opened = act.joints_open if act is not None else [False] * 6
-        opened = list(opened[:6]) + [False] * (6 - len(opened[:6]))
-        s.add(f"{base}/joints", rr.Points2D, t, positions=view_xy(p.joint_points(JOINT_INSET)),
-              colors=[JOINT_OPEN if o else JOINT_CLOSED for o in opened],
-              radii=[0.07 if o else 0.04 for o in opened])
-        pts: list[np.ndarray] = []
-        cols: list[tuple[int, int, int]] = []
-        if act is not None:
-            for flags, where, c in ((act.led_pos, p.side_points(LED_POS_INSET), LED_POS),
-                                    (act.led_neg, p.side_points(LED_NEG_INSET), LED_NEG),
-                                    (act.led_joint, p.joint_points(LED_JOINT_INSET), LED_JOINT)):
-                for i, on in enumerate(flags[:6]):
-                    if on:
-                        pts.append(where[i])
-                        cols.append(c)
-        s.add(f"{base}/leds", rr.Points2D, t, positions=view_xy(np.array(pts)).reshape(-1, 2),
-              colors=cols, radii=[0.035] * len(pts))
 
     def grid(self, margin: int = 2) -> list[np.ndarray]:
         """Outlines of the lattice cells around everything seen."""
@@ -443,17 +465,31 @@ class ReplayStats:
         return (self.sim_ns / 1e9) / self.wall_s if self.wall_s > 0 else float("inf")
 
 
-def _send_static(rec: rr.RecordingStream, b: ReplayBuilder, meta: dict[str, Any]) -> None:
-    grid = b.grid()
-    if grid:
-        rec.log("world/lattice", rr.LineStrips2D(grid, colors=[GRID], radii=[0.01]), static=True)
+def send_styles(rec: rr.RecordingStream) -> None:
+    """Static styles: draw orders (value map and lattice below the modules), series names."""
     rec.log("planner/value", rr.Points2D.from_fields(draw_order=-10.0), static=True)
     rec.log("world/lattice", rr.LineStrips2D.from_fields(draw_order=-20.0), static=True)
     for name in ("run_j", "move_j"):
         rec.log(f"plots/energy/{name}", rr.SeriesLines(names=name), static=True)
+
+
+def send_grid(rec: rr.RecordingStream, grid: list[np.ndarray]) -> None:
+    """The lattice cells around everything seen (static: a later call replaces it)."""
+    if grid:
+        rec.log("world/lattice", rr.LineStrips2D(grid, colors=[GRID], radii=[0.01]), static=True)
+
+
+def send_meta(rec: rr.RecordingStream, meta: dict[str, Any]) -> None:
+    """The run's metadata as recording properties, and a recording name made of it."""
     if meta:
         rec.send_property("hexbench", rr.AnyValues(**{k: str(v) for k, v in sorted(meta.items())}))
         rec.send_recording_name(f"{meta.get('scenario', 'run')} ({meta.get('profile', '?')}, seed {meta.get('seed', '?')})")
+
+
+def _send_static(rec: rr.RecordingStream, b: ReplayBuilder, meta: dict[str, Any]) -> None:
+    send_grid(rec, b.grid())
+    send_styles(rec)
+    send_meta(rec, meta)
 
 
 def rerun_binary() -> str:

@@ -8,6 +8,8 @@ import subprocess
 from collections import defaultdict
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
@@ -98,3 +100,18 @@ def test_a_bad_start_time_is_refused(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["run", "pair", "--clock", "virtual", "--record", str(tmp_path / "x.mcap"), "--start-time", "noon"])
     assert exc.value.code == 2 and "--start-time" in capsys.readouterr().err
+
+
+@settings(max_examples=300, deadline=None)
+@given(t=st.integers(min_value=0, max_value=2**32 * 10**9 - 1), noise=st.booleans())
+def test_the_fast_frame_log_is_the_sdks_own_encoding(t, noise):
+    """The recorder encodes a line once and the timestamp per frame: byte for byte what the SDK
+    writes for the whole message."""
+    from bus.envelope import Envelope
+    from recordings.foxglove import FrameLog
+    payload = (b'{"link":"side","src":"m1.comm","dst":"side1","raw":"ff","sim_time_ns":3164788676,'
+               b'"wall_time_ns":1795567395901649287,"seq":7,"kind":"' + (b'noise' if noise else b'probe')
+               + b'","view":{"byte":255}}')
+    log = FrameLog()
+    for kind in (None, "noise" if noise else "probe"):  # found in the bytes, or given by the recorder
+        assert log.log_payload(payload, kind, t) == log.log(Envelope.from_json(payload), t)
