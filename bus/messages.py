@@ -146,6 +146,7 @@ class PlannerProgress(Record):
     message: str = ""
     done: bool = False
     ok: bool = True
+    planned: int = 0  # moves in the plan (0: not planned yet, or a script)
 
 
 @dataclass

@@ -43,7 +43,12 @@ def run_demo(args: argparse.Namespace) -> int:
           f"({st.speed:.0f}x real time)")
     print("\nopen them with:\n"
           f"  {_tool('rerun')} {rrd}        # the replay: hexagons, actuators, IR, frames\n"
-          f"  {_tool('hexbench')} info {mcap}    # frames per link, events, metadata\n"
+          f"  {_tool('hexbench')} info {mcap}    # frames per link, errors and expected events, metadata\n"
           f"  {_tool('rerun')} {mcap}       # rerun's own MCAP importer\n"
-          f"  (or open {mcap.name} in Foxglove)")
+          f"  Foxglove: Open local file -> {mcap.resolve()}\n"
+          "            a 3D panel on foxglove/scene (frame 'lattice'), a Log panel on foxglove/log\n"
+          "watch a run as it goes:\n"
+          f"  {_tool('hexbench')} run thesis-6 --clock wall --live rerun       # a rerun viewer\n"
+          f"  {_tool('hexbench')} run thesis-6 --clock wall --live foxglove    # Foxglove: Open connection -> "
+          "ws://127.0.0.1:8765")
     return 0

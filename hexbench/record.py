@@ -247,6 +247,7 @@ def cmd_bus_replay(args: argparse.Namespace) -> int:
         raise UsageError("--scenario only goes with --compare")
 
     from .bus_replay import BusReplay
+    from .progress import Progress
 
     bus = open_bus(args, WallClock())
     clock = bus.clock
@@ -254,7 +255,11 @@ def cmd_bus_replay(args: argparse.Namespace) -> int:
         replay = BusReplay.from_recording(bus, args.file, links=links, speed=args.speed)
         t0 = time.monotonic()
         replay.schedule(start_ns=clock.now_ns() + 500_000_000)  # a lead-in for peers to connect
-        clock.run(until=lambda: replay.done)
+        with Progress(stream=sys.stderr) as progress:
+            def until() -> bool:
+                progress.update("frames replayed", replay.sent, len(replay))
+                return replay.done
+            clock.run(until=until)
     except KeyboardInterrupt:
         return 130
     finally:

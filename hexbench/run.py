@@ -16,6 +16,7 @@ from bus import UsageError, add_bus_arguments, open_bus
 
 from .args import instant
 from .live import add_live_argument, start_live
+from .progress import Progress, phase_sayer
 
 
 def add_run_arguments(p: argparse.ArgumentParser, *, with_fleet: bool) -> None:
@@ -188,6 +189,8 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
     bridges: list = []
     checks: list = []
     firmware: list = []
+    progress = Progress().__enter__()  # a bar on a terminal; ended before the summary lines
+    bus.subscribe(bus.keys.planner("progress"), progress.on_planner_progress)
     try:
         if with_fleet:
             scenario = _start_firmware(scenario, firmware)
@@ -200,12 +203,11 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
         lives = start_live(args.live, bus, meta=meta.to_dict())
         bus.put(bus.keys.meta, meta.to_json())
         since = clock.now_ns()
-        print(f"run: scenario {scenario.name} ({len(scenario.modules)} modules, profile "
-              f"{scenario.profile}, seed {scenario.seed}), planner {args.planner}, clock {args.clock}"
-              + (f", faults {', '.join(map(str, scenario.faults))}" if scenario.faults else ""),
-              flush=True)
-        service = PlannerService(bus, scenario, args.planner, timing=timing,
-                                 say=lambda s: print(s, flush=True))
+        progress.say(f"run: scenario {scenario.name} ({len(scenario.modules)} modules, profile "
+                     f"{scenario.profile}, seed {scenario.seed}), planner {args.planner}, clock {args.clock}"
+                     + (f", faults {', '.join(map(str, scenario.faults))}" if scenario.faults else ""))
+        progress.phase("boot")
+        service = PlannerService(bus, scenario, args.planner, timing=timing, say=phase_sayer(progress))
         if with_fleet:  # after the service subscribed: it sees the world's first poses
             from module_sim.fleet import Fleet
             bridges.extend(_bridges(bus, scenario, getattr(args, "hil_port", None)))
@@ -213,6 +215,7 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
             checks = _twin_checks(bus, scenario, fleet, bridges, getattr(args, "hil_port", None))
             fleet.power_up()
         result = service.run(since)
+        progress.__exit__()
         if with_fleet:
             fleet.world.mechanics.publish_run_energy()
             if not clock.drain(timeout_s=DRAIN_S):
@@ -222,6 +225,7 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
             print(check.summary(), flush=True)
         print(result.summary(), flush=True)
     finally:
+        progress.__exit__()
         for close in lives:
             close()
         for b in bridges:

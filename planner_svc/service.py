@@ -72,6 +72,8 @@ class PlannerService:
         self.bringup = BringUp(self.pc, scenario, say=say)
         self.timing = timing
         self.view: Fleetview | None = None
+        self._planned = 0  # moves in the plan, once there is one
+        self._moves_began: float | None = None  # wall time the first move began
 
     # -- progress out --------------------------------------------------------------------------
     def _progress(self, step: int, moves: int, message: str, *, done: bool = False,
@@ -81,11 +83,21 @@ class PlannerService:
         cells = set(self.view.cells()) if self.view else self.truth.cells()
         filled = len(goal & cells)
         self.bus.put(self.bus.keys.planner("progress"), PlannerProgress(
-            self.bus.clock.now_ns(), step, moves, filled, len(goal), message, done, ok).to_json())
+            self.bus.clock.now_ns(), step, moves, filled, len(goal), message, done, ok,
+            planned=self._planned).to_json())
         t = (self.bus.clock.now_ns() - self.bus.clock.started_ns) / NS_PER_S
+        of = f"/{self._planned}" if self._planned else ""
         # the last line names the outcome only: the caller prints the run's summary once
-        self.say(f"[{t:8.2f} s] step {step:3} moves {moves:3} "
-                 f"goal {filled}/{len(goal)}  {message.split('; ')[0] if done else message}")
+        self.say(f"[{t:8.2f} s] step {step:3} moves {moves:3}{of} "
+                 f"goal {filled}/{len(goal)}  {message.split('; ')[0] if done else message}"
+                 + ("" if done else self._time_left(moves)))
+
+    def _time_left(self, moves: int) -> str:
+        """``  (~12 s left)``: the wall time the remaining moves take at this run's pace so far."""
+        if not self._planned or not moves or self._moves_began is None or moves >= self._planned:
+            return ""
+        left = (time.monotonic() - self._moves_began) / moves * (self._planned - moves)
+        return f"  (~{left:.0f} s left)" if left >= 1 else ""  # a fast virtual run: no noise
 
     def _state(self, step: int, moves: list[Move]) -> None:
         occ = set(self.view.cells()) if self.view else set()
@@ -154,6 +166,7 @@ class PlannerService:
         result.energy_estimate_j = plan.energy_joules
         result.notes = list(plan.notes)
         self.say(f"plan: {plan.summary()}")
+        self._planned, self._moves_began = plan.moves, time.monotonic()
         executor = Executor(self.pc, self.view, self.bringup, self.truth, timing=self.timing,
                             say=self.say)
         for n, step in enumerate(plan.steps, 1):

@@ -253,3 +253,16 @@ def test_incremental_painting_draws_the_rows_of_a_replay(run, flush_every, reque
         assert got[key] == expected[key], key
     if run == "recorded":  # the moving module's animation frames are in there
         assert len(got[("world/modules/m4", "LineStrips2D")]) > 20
+
+
+def test_hexbench_run_live_rerun_streams_to_the_server(rerun_server, capsys):
+    """The CLI: ``hexbench run pair --live rerun=URL`` sends the module entities to a viewer's
+    server as the run goes (read back from what the server saved, once the run has ended)."""
+    from hexbench.cli import main
+    assert main(["run", "pair", "--clock", "virtual", "--live", f"rerun={rerun_server.url}"]) == 0
+    assert f"live: rerun stream to {rerun_server.url}" in capsys.readouterr().out
+    chunks = rerun_server.wait_for("world/modules/m2/joints")
+    entities = {c.entity_path for c in chunks}
+    assert {"/world/modules/m1", "/world/modules/m2", "/world/modules/m1/magnets", "/frames/pc",
+            "/planner/goal"} <= entities
+    assert any("command Move" in line for line in _texts(chunks, "/frames/pc"))

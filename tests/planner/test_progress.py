@@ -1,0 +1,69 @@
+"""Progress of a run: moves n/N in the planner's lines, a bar under them on a terminal (read
+through a real pseudo-terminal), plain lines in a pipe; the bus carries the plan's size."""
+
+from __future__ import annotations
+
+import io
+import os
+import pty
+import re
+import subprocess
+import sys
+import time
+
+from bus.messages import PlannerProgress
+from hexbench.cli import main
+from hexbench.progress import Progress
+
+
+def test_plain_output_counts_moves_of_the_plan(capsys):
+    assert main(["run", "thesis-6", "--planner", "complete", "--clock", "virtual"]) == 0
+    out = capsys.readouterr().out
+    planned = int(re.search(r"^plan: .* moves (\d+),", out, re.M).group(1))
+    counts = re.findall(r"^\[ *[\d.]+ s\] step +\d+ moves +(\d+)/(\d+) ", out, re.M)
+    assert planned > 1 and [int(n) for n, _ in counts][-1] == planned
+    assert {int(total) for _, total in counts} == {planned}
+    assert "\x1b[" not in out  # no terminal codes in a pipe
+
+
+def test_a_terminal_gets_a_bar_of_moves():
+    """Under a pseudo-terminal the run draws rich's bar (moves n/N, time left) and clears it
+    before the summary; the lines still come as they happen."""
+    leader, follower = pty.openpty()
+    proc = subprocess.Popen([sys.executable, "-m", "hexbench", "run", "thesis-6", "--planner", "complete",
+                             "--clock", "virtual"], stdin=follower, stdout=follower, stderr=follower,
+                            env={**os.environ, "COLUMNS": "120", "TERM": "xterm"}, close_fds=True)
+    os.close(follower)
+    screen = b""
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        try:
+            chunk = os.read(leader, 65536)
+        except OSError:  # the child closed the terminal: it has ended
+            break
+        if not chunk:
+            break
+        screen += chunk
+    os.close(leader)
+    assert proc.wait(timeout=30) == 0
+    text = screen.decode("utf-8", "replace")
+    assert re.search(r"moves \(step \d+\).*\d+/\d+", text)  # the bar's text and its n/N column
+    assert "\x1b[2K" in text  # lines drawn over the bar, which is redrawn below them
+    assert "goal reached; steps" in text.splitlines()[-1] or "goal reached; steps" in text
+
+
+def test_plain_progress_lines_are_rate_limited():
+    out = io.StringIO()
+    with Progress(stream=out, bar=False) as p:
+        for i in range(1, 101):
+            p.update("frames replayed", i, 100)
+    lines = out.getvalue().splitlines()
+    assert lines[0] == "progress: frames replayed 1/100" and lines[-1] == "progress: frames replayed 100/100"
+    assert len(lines) == 2  # the first, then nothing new for 5 s but the end
+
+
+def test_the_plan_size_travels_on_the_bus():
+    p = PlannerProgress(1, 2, 3, 4, 5, "moved", planned=18)
+    assert PlannerProgress.from_json(p.to_json()).planned == 18
+    assert PlannerProgress.from_dict({"sim_time_ns": 1, "step": 2, "moves": 3, "goal_filled": 4,
+                                      "goal_total": 5}).planned == 0  # older recordings
