@@ -4,16 +4,12 @@ through a real pseudo-terminal), plain lines in a pipe; the bus carries the plan
 from __future__ import annotations
 
 import io
-import os
-import pty
 import re
-import subprocess
-import sys
-import time
 
 from bus.messages import PlannerProgress
 from hexbench.cli import main
 from hexbench.progress import Progress
+from processes import run_in_pty
 
 
 def test_plain_output_counts_moves_of_the_plan(capsys):
@@ -29,23 +25,8 @@ def test_plain_output_counts_moves_of_the_plan(capsys):
 def test_a_terminal_gets_a_bar_of_moves():
     """Under a pseudo-terminal the run draws rich's bar (moves n/N, time left) and clears it
     before the summary; the lines still come as they happen."""
-    leader, follower = pty.openpty()
-    proc = subprocess.Popen([sys.executable, "-m", "hexbench", "run", "thesis-6", "--planner", "complete",
-                             "--clock", "virtual"], stdin=follower, stdout=follower, stderr=follower,
-                            env={**os.environ, "COLUMNS": "120", "TERM": "xterm"}, close_fds=True)
-    os.close(follower)
-    screen = b""
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline:
-        try:
-            chunk = os.read(leader, 65536)
-        except OSError:  # the child closed the terminal: it has ended
-            break
-        if not chunk:
-            break
-        screen += chunk
-    os.close(leader)
-    assert proc.wait(timeout=30) == 0
+    code, screen = run_in_pty(["run", "thesis-6", "--planner", "complete", "--clock", "virtual"])
+    assert code == 0
     text = screen.decode("utf-8", "replace")
     assert re.search(r"moves \(step \d+\).*\d+/\d+", text)  # the bar's text and its n/N column
     assert "\x1b[2K" in text  # lines drawn over the bar, which is redrawn below them

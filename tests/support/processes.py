@@ -33,3 +33,32 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def run_in_pty(args: list[str], *, timeout_s: float = 120, columns: int = 120, lines: int = 40) -> tuple[int, bytes]:
+    """``python -m hexbench ARGS`` on a real pseudo-terminal (as a person runs it): its exit
+    status and everything it drew, once it has ended (killed after ``timeout_s``)."""
+    import pty
+    import time
+
+    leader, follower = pty.openpty()
+    proc = subprocess.Popen([sys.executable, "-m", "hexbench", *args], stdin=follower, stdout=follower,
+                            stderr=follower, close_fds=True,
+                            env={**os.environ, "COLUMNS": str(columns), "LINES": str(lines), "TERM": "xterm"})
+    os.close(follower)
+    screen = b""
+    deadline = time.monotonic() + timeout_s
+    try:
+        while time.monotonic() < deadline:
+            try:
+                chunk = os.read(leader, 65536)
+            except OSError:  # the child ended and closed the terminal
+                break
+            if not chunk:
+                break
+            screen += chunk
+    finally:
+        os.close(leader)
+        if proc.poll() is None and time.monotonic() >= deadline:
+            proc.kill()
+    return proc.wait(timeout=30), screen
