@@ -80,7 +80,8 @@ class Run:
 
     def records(self) -> list[tuple[str, dict]]:
         with open(self.dir / "run.mcap", "rb") as f:
-            return [(ch.topic, json.loads(m.data)) for _, ch, m in make_reader(f).iter_messages()]
+            return [(ch.topic, json.loads(m.data)) for _, ch, m in make_reader(f).iter_messages()
+                    if ch.message_encoding == "json"]  # not the foxglove/* channels
 
     def events(self, kind: str) -> list[dict]:
         return [d for t, d in self.records() if t.startswith("event/") and d["kind"] == kind]
