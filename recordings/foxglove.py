@@ -246,12 +246,14 @@ _KIND = re.compile(rb'"kind":"([a-z0-9_-]*)"')
 
 
 def _varint(n: int) -> bytes:
-    if n < 1 << 28:  # nanoseconds and most seconds fields: unrolled (this runs once per frame)
+    if n < 1 << 35:  # seconds since 1970 need 5 bytes, nanoseconds at most 5: unrolled (once per frame)
         if n < 1 << 14:
             return bytes((n,)) if n < 0x80 else bytes((n & 0x7F | 0x80, n >> 7))
-        if n < 1 << 21:
-            return bytes((n & 0x7F | 0x80, n >> 7 & 0x7F | 0x80, n >> 14))
-        return bytes((n & 0x7F | 0x80, n >> 7 & 0x7F | 0x80, n >> 14 & 0x7F | 0x80, n >> 21))
+        if n < 1 << 28:
+            if n < 1 << 21:
+                return bytes((n & 0x7F | 0x80, n >> 7 & 0x7F | 0x80, n >> 14))
+            return bytes((n & 0x7F | 0x80, n >> 7 & 0x7F | 0x80, n >> 14 & 0x7F | 0x80, n >> 21))
+        return bytes((n & 0x7F | 0x80, n >> 7 & 0x7F | 0x80, n >> 14 & 0x7F | 0x80, n >> 21 & 0x7F | 0x80, n >> 28))
     out = bytearray()
     while n > 0x7F:
         out.append((n & 0x7F) | 0x80)
@@ -265,12 +267,15 @@ def _seconds(sec: int) -> bytes:
     return b"\x08" + _varint(sec) if sec else b""
 
 
+_FIELD_1 = [bytes((0x0A, n)) for n in range(128)]  # field 1, length-delimited, length n (< 128: one byte)
+
+
 def timestamp_field(t_ns: int) -> bytes:
     """Field 1 of a Foxglove message (``timestamp``, a ``google.protobuf.Timestamp``), encoded:
     what the SDK writes for ``timestamp=timestamp(t_ns)`` (zero fields are left out)."""
     sec, nsec = divmod(t_ns, 1_000_000_000)
-    inner = _seconds(sec) + (b"\x10" + _varint(nsec) if nsec else b"")
-    return b"\x0a" + _varint(len(inner)) + inner
+    inner = _seconds(sec) + b"\x10" + _varint(nsec) if nsec else _seconds(sec)
+    return _FIELD_1[len(inner)] + inner
 
 
 def module_cells(update: Any) -> Iterable[tuple[str, tuple[int, int]]]:

@@ -44,6 +44,10 @@ TimeSource = Literal["auto", "sim", "wall"]
 _CHECK_SIZE_EVERY = 64  # messages between file-size checks (tell() is a syscall)
 _decode = json.JSONDecoder().decode  # skips json.loads' encoding sniffing (payloads are UTF-8)
 _INT = re.compile(rb"\s*(-?\d+)\s*[,}]")
+#: An envelope as :meth:`bus.envelope.Envelope.to_json` writes it: its times and kind in one match
+#: (the fields before it, link, src, dst and raw, are the rest of the required ones).
+_ENVELOPE = re.compile(rb',"sim_time_ns":(\d+),"wall_time_ns":(\d+),"seq":\d+,"kind":"([^"\\]*)"')
+_ENVELOPE_HEAD = (b'{"link":', b',"src":', b',"dst":', b',"raw":')
 _STRING = re.compile(rb'\s*"([^"\\]*)"')
 
 
@@ -87,7 +91,15 @@ class _Route:
 
     def scan(self, payload: bytes) -> tuple[int | None, int | None, str | None] | None:
         """``(sim_time_ns, wall_time_ns, kind)`` read from the bytes, or None: decode it."""
-        if payload[:1] != b"{" or payload[-1:] != b"}":
+        if payload[-1:] != b"}":
+            return None
+        if self.frame and payload[:8] == b'{"link":':  # the common case: one match, no field scan
+            m = _ENVELOPE.search(payload)
+            if m is not None:
+                head = payload[:m.start()]
+                if all(name in head for name in _ENVELOPE_HEAD):
+                    return int(m.group(1)), int(m.group(2)), m.group(3).decode("utf-8", "replace")
+        if payload[:1] != b"{":
             return None
         for name in self.required:
             if name not in payload:
@@ -215,9 +227,13 @@ class Recorder:
             self._part.add_kind(route.topic, kind, log_time)
             if route.frame and self._frame_log is not None:
                 try:
-                    self._derived(LOG_TOPIC, self._frame_log.log_payload(payload, kind, log_time), log_time)
+                    line = self._frame_log.log_payload(payload, kind, log_time)
                 except (ValueError, KeyError, TypeError):
-                    pass  # not an envelope after all: the frame channel keeps it as it came
+                    return  # not an envelope after all: the frame channel keeps it as it came
+                cid = self._cids.get(LOG_TOPIC)
+                if cid is None:
+                    cid = self._cids[LOG_TOPIC] = self._sink.channel(LOG_TOPIC)
+                self._sink.write_to(cid, line, log_time, log_time)  # at a frame's time: no _last_log_ns
 
     def _write_checked(self, topic: str, key: str, payload: bytes, wall: int) -> None:
         """The careful path: decode the whole payload, check its schema's required fields."""
