@@ -239,11 +239,12 @@ def _decompress(chunk: Chunk) -> bytes:
 
 
 # --- convenience iterators -------------------------------------------------------------------
-def iter_samples(path: str | Path, topics: Iterable[str] | None = None) -> Iterator[Sample]:
-    """All samples of a recording (every part), in recorded order."""
+def iter_samples(path: str | Path, topics: Iterable[str] | None = None, *, derived: bool = False) -> Iterator[Sample]:
+    """All samples of a recording (every part), in recorded order (``derived``: with the
+    channels the recorder derives for Foxglove, see :meth:`RecordingFile.samples`)."""
     topics = None if topics is None else list(topics)
     for part in parts_of(path):
-        yield from RecordingFile(part).samples(topics)
+        yield from RecordingFile(part).samples(topics, derived=derived)
 
 
 def iter_records(path: str | Path) -> Iterator[tuple[Sample, Any]]:

@@ -226,14 +226,18 @@ class Recorder:
             self._sink.write_to(cid, payload, log_time, wall if pub is None else pub)
             self._part.add_kind(route.topic, kind, log_time)
             if route.frame and self._frame_log is not None:
-                try:
-                    line = self._frame_log.log_payload(payload, kind, log_time)
-                except (ValueError, KeyError, TypeError):
-                    return  # not an envelope after all: the frame channel keeps it as it came
-                cid = self._cids.get(LOG_TOPIC)
-                if cid is None:
-                    cid = self._cids[LOG_TOPIC] = self._sink.channel(LOG_TOPIC)
-                self._sink.write_to(cid, line, log_time, log_time)  # at a frame's time: no _last_log_ns
+                self._log_frame(payload, kind, log_time)
+
+    def _log_frame(self, payload: bytes, kind: str | None, log_time: int) -> None:
+        """The frame's foxglove.Log line (under the lock)."""
+        try:
+            line = self._frame_log.log_payload(payload, kind, log_time)  # type: ignore[union-attr]
+        except (ValueError, KeyError, TypeError):
+            return  # not an envelope after all: the frame channel keeps it as it came
+        cid = self._cids.get(LOG_TOPIC)
+        if cid is None:
+            cid = self._cids[LOG_TOPIC] = self._sink.channel(LOG_TOPIC)
+        self._sink.write_to(cid, line, log_time, log_time)  # at a frame's time: no _last_log_ns
 
     def _write_checked(self, topic: str, key: str, payload: bytes, wall: int) -> None:
         """The careful path: decode the whole payload, check its schema's required fields."""
@@ -259,8 +263,12 @@ class Recorder:
                 self._last_sim_ns = sim
             log_time = wall if self.time_source == "wall" else self._origin + (self._last_sim_ns if sim is None else sim)
             self._write_locked(topic, payload, obj, log_time, pub if isinstance(pub, int) else wall)
+            if self._closed:
+                return
             if self._scene is not None and topic.startswith(SCENE_TOPICS):
                 self._to_scene(topic, obj, log_time)
+            elif self._frame_log is not None and topic.startswith("frame/") and isinstance(obj, dict):
+                self._log_frame(payload, obj.get("kind") if isinstance(obj.get("kind"), str) else None, log_time)
             if topic == "meta" and isinstance(obj, dict) and not self._closed:
                 self.meta = meta_mod.merge(self.meta, RunMeta.from_dict(obj))
                 self._sink.add_metadata(self.meta)
@@ -288,8 +296,6 @@ class Recorder:
 
     # -- what the recorder derives for Foxglove ------------------------------------------------------
     def _to_scene(self, topic: str, obj: Any, log_time: int) -> None:
-        if self._closed:
-            return
         assert self._scene is not None
         update = self._scene.feed_record(topic, obj, log_time)
         if update is not None:
