@@ -73,8 +73,9 @@ def test_command_through_the_bridge_gets_the_exact_ack(rig: Rig, standin: StandI
     ack = rig.pc.ack("SxP", 3, timeout_s=5)
     assert ack.frame.raw == ack_line(F.SxP)
     assert bytes(standin.received[mark:]) == encode_command("SxP", 3)  # what crossed the pty
-    # the ACK took its 13 bytes of wire time at 300 baud (bytes are stamped on arrival)
-    assert abs((ack.t_last_ns - ack.t_first_ns) - 13 * rig.pc.byte_ns) < 100_000_000
+    # the ACK took its 13 bytes of wire time at 300 baud (bytes are stamped on arrival, so a
+    # loaded machine's scheduling adds to it: 4 byte times of slack, far from half or twice 13)
+    assert abs((ack.t_last_ns - ack.t_first_ns) - 13 * rig.pc.byte_ns) < 4 * rig.pc.byte_ns
 
     rig.until(lambda: any(f.kind == "ack" for f in rig.bridge_frames()), 2, "the bridge's ACK frame")
     env = next(f for f in rig.bridge_frames() if f.kind == "ack")
