@@ -186,6 +186,25 @@ def cmd_scenarios(args: argparse.Namespace) -> int:
     return 0
 
 
+#: Times above this are Unix times (a wall-clock fleet), not sim times (as recordings.player).
+_EPOCH_NS = 10**17
+
+
+class _Seconds:
+    """Seconds to show for a sample's ``sim_time_ns``: sim time as it is on a virtual clock;
+    on a wall clock (Unix times) from the first sample this monitor saw."""
+
+    def __init__(self) -> None:
+        self.t0: int | None = None
+
+    def __call__(self, t_ns: int | None) -> str:
+        if not isinstance(t_ns, int):
+            return ""
+        if self.t0 is None:
+            self.t0 = t_ns if t_ns > _EPOCH_NS else 0
+        return f"{(t_ns - self.t0) / 1e9:.3f}"
+
+
 def cmd_monitor(args: argparse.Namespace) -> int:
     if args.table:
         return _monitor_table(args)
@@ -193,13 +212,19 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     clock = bus.clock
     links = set(args.link or [])
 
+    seconds = _Seconds()
+
     def on_frame(env: Envelope) -> None:
         if not links or env.link in links:
-            print(f"{env.sim_time_ns / 1e9:12.6f} {env.link:10} {env.src:>10} -> {env.dst:<8} "
+            print(f"{seconds(env.sim_time_ns):>12} {env.link:10} {env.src:>10} -> {env.dst:<8} "
                   f"{env.frame.describe()}", flush=True)
 
     def on_event(key: str, payload: bytes) -> None:
-        print(f"{'':12} event {bus.keys.relative(key)} {payload.decode(errors='replace')}", flush=True)
+        try:
+            t = json.loads(payload).get("sim_time_ns")
+        except (ValueError, AttributeError):
+            t = None
+        print(f"{seconds(t):>12} event {bus.keys.relative(key)} {payload.decode(errors='replace')}", flush=True)
 
     lives = start_live(args.live, bus)
     if lives:  # a late joiner: ask the world for its poses, so the live scene has every module
@@ -226,13 +251,12 @@ def _monitor_table(args: argparse.Namespace) -> int:
     clock = bus.clock
     links = set(args.link or [])
     rows: dict[tuple[str, str], dict] = {}
-    start: list[int] = []
+    seconds = _Seconds()
 
     def on_frame(env: Envelope) -> None:
         if links and env.link not in links:
             return
-        if not start:
-            start.append(env.sim_time_ns)
+        seconds(env.sim_time_ns)  # the first sample sets the time base
         r = rows.setdefault((env.link, env.src), {"count": 0, "noise": 0, "first": env.sim_time_ns})
         r["count"] += 1
         r["noise"] += env.kind == "noise"
@@ -249,7 +273,7 @@ def _monitor_table(args: argparse.Namespace) -> int:
             span = (r["last"] - r["first"]) / 1e9
             rate = (r["count"] - 1) / span if span > 0 else 0.0
             t.add_row(link, src, r["dst"], str(r["count"]), str(r["noise"]), f"{rate:.1f}",
-                      f"{(r['last'] - start[0]) / 1e9:.3f}", r["what"])
+                      seconds(r['last']), r["what"])
         return t
 
     console = Console()
