@@ -208,8 +208,11 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
     if args.rrd is None and not args.spawn:
         raise UsageError("say where the replay goes: --rrd out.rrd and/or --spawn, or --to-bus")
+    from .progress import Progress
     try:
-        st = replay(args.file, rrd=args.rrd, spawn=args.spawn, anim_step_ns=int(args.anim_ms * 1e6))
+        with Progress(stream=sys.stderr) as bar:
+            st = replay(args.file, rrd=args.rrd, spawn=args.spawn, anim_step_ns=int(args.anim_ms * 1e6),
+                        progress=lambda phase, done, total: bar.update(f"replay: {phase}", done, total))
     except FileNotFoundError as exc:
         raise UsageError(str(exc)) from None
     _warn_damaged(st.damaged)

@@ -19,7 +19,7 @@ from collections import Counter, defaultdict, deque
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Callable, Iterable, Iterator
 
 import numpy as np
 import rerun as rr
@@ -500,17 +500,36 @@ def rerun_binary() -> str:
     return str(here) if here.exists() else (shutil.which("rerun") or "rerun")
 
 
+#: ``progress(phase, done, total)`` of a replay: "reading", "drawing" (samples), "sending" (rows).
+ReplayProgress = Callable[[str, int, "int | None"], None]
+
+
+def _counted(items: Iterable[Any], total: int, progress: ReplayProgress, every: int = 10_000) -> Iterator[Any]:
+    for n, item in enumerate(items, 1):
+        if n % every == 0:
+            progress("drawing", n, total)
+        yield item
+    progress("drawing", total, total)
+
+
 def replay(path: str | Path, *, rrd: str | Path | None = None, spawn: bool = False,
-           recording_id: str | None = None, anim_step_ns: int = 20_000_000) -> ReplayStats:
-    """Replay a recording into an .rrd file and/or a spawned viewer."""
+           recording_id: str | None = None, anim_step_ns: int = 20_000_000,
+           progress: ReplayProgress | None = None) -> ReplayStats:
+    """Replay a recording into an .rrd file and/or a spawned viewer (``progress`` is told
+    how far it is)."""
     import time
     if rrd is None and not spawn:
         raise ValueError("replay needs an .rrd path or spawn=True")
     t0 = time.perf_counter()
+    if progress is not None:
+        progress("reading", 0, None)
     player = Player(path)
     builder = ReplayBuilder(anim_step_ns=anim_step_ns)
-    builder.feed(player.items())
+    items = player.items()
+    builder.feed(items if progress is None else _counted(items, len(player), progress))
     scene = builder.render()
+    if progress is not None:
+        progress("sending", 0, None)
     rec = rr.RecordingStream(APP_ID, recording_id=recording_id or str(uuid.uuid4()))
     bp = blueprint()
     if rrd is not None:

@@ -48,3 +48,16 @@ def test_the_plan_size_travels_on_the_bus():
     assert PlannerProgress.from_json(p.to_json()).planned == 18
     assert PlannerProgress.from_dict({"sim_time_ns": 1, "step": 2, "moves": 3, "goal_filled": 4,
                                       "goal_total": 5}).planned == 0  # older recordings
+
+
+def test_replay_reports_its_phases(tmp_path, capsys):
+    """``replay --rrd`` says what it is doing (plain lines off a terminal)."""
+    from hexbench.cli import main as cli
+    rec = tmp_path / "pair.mcap"
+    assert cli(["run", "pair", "--clock", "virtual", "--record", str(rec)]) == 0
+    capsys.readouterr()
+    assert cli(["replay", str(rec), "--rrd", str(tmp_path / "pair.rrd")]) == 0
+    err = capsys.readouterr().err
+    assert "progress: replay: reading" in err
+    n = int(re.search(r"progress: replay: drawing (\d+)/\1", err).group(1))
+    assert f"{n} samples" in err
