@@ -87,6 +87,6 @@ def phase_sayer(progress: Progress) -> Callable[[str], None]:
     the bring-up's phases until the moves start."""
     def say(line: str) -> None:
         progress.say(line)
-        if line.startswith(("bring-up:", "plan:")):
+        if line.startswith(("bring-up:", "planning:", "plan:")):
             progress.phase(line.split(":", 1)[1].strip())
     return say

@@ -160,6 +160,7 @@ class PlannerService:
                      f"{sorted(map(str, initial ^ frozenset(self.scenario.initial)))}")
         problem = Problem.of(initial, self.scenario.goal, self.scenario.fixed,
                              self.scenario.obstacles, self.scenario.name)
+        self.say(f"planning: {self.planner_name} on {len(initial)} modules ...")
         plan: Plan = planner.plan(problem)
         validate(plan)
         result.planning_s, result.planned_moves = plan.seconds, plan.moves
