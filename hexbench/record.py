@@ -21,6 +21,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rotate-mb", type=float, metavar="N", help="start a new file every N MB")
     p.add_argument("--rotate-s", type=float, metavar="N", help="start a new file every N seconds")
     p.add_argument("--seconds", type=float, metavar="N", help="stop after N seconds")
+    p.add_argument("--sync", action="store_true",
+                   help="joining a fleet that already runs: ask its world to republish every pose "
+                        "and switch state, so the recording (its scene, the replay) starts with "
+                        "every module where it is")
     p.add_argument("--flush-s", type=float, default=0.5, metavar="S",
                    help="flush to disk at least this often (default 0.5): what a crash may lose")
     p.add_argument("--compression", choices=["zstd", "lz4", "none"], default="zstd")
@@ -122,6 +126,8 @@ def cmd_record(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, lambda *_: clock.stop())
     try:
         rec.attach(bus)
+        if args.sync:
+            bus.put_json(bus.keys.world_sync, {"from": "recorder"})
         print(f"recording {bus.keys.all} to {rec.paths[0]}", flush=True)
         clock.run(timeout_s=args.seconds)
     except KeyboardInterrupt:

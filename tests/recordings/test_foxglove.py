@@ -115,3 +115,24 @@ def test_the_fast_frame_log_is_the_sdks_own_encoding(t, noise):
     log = FrameLog()
     for kind in (None, "noise" if noise else "probe"):  # found in the bytes, or given by the recorder
         assert log.log_payload(payload, kind, t) == log.log(Envelope.from_json(payload), t)
+
+
+def test_a_recorder_joining_late_gets_the_whole_scene_with_sync(tmp_path):
+    """``hexbench record --sync`` joins a running fleet and asks its world to republish the
+    poses: the recording's scene holds every module although none moved while it recorded."""
+    import signal
+
+    from processes import free_port, hexbench, wall_fleet
+    port = free_port()
+    fleet = wall_fleet("pair", port, f"late{port}", seconds=30)
+    out = tmp_path / "late.mcap"
+    try:
+        rec = hexbench("record", "--sync", "--seconds", "3", "--connect", f"tcp/127.0.0.1:{port}",
+                       "--fleet", f"late{port}", "--out", str(out))
+        text = rec.communicate(timeout=60)[0]
+        assert rec.returncode == 0, text
+    finally:
+        fleet.send_signal(signal.SIGTERM)
+        fleet.communicate(timeout=30)
+    scenes = _decoded(out, "foxglove/scene")
+    assert dict(module_cells(scenes[-1][1])) == {"m1": (0, 0), "m2": (1, 0)}
