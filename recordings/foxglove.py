@@ -88,7 +88,7 @@ class SceneView:
             m = self._module(value.module)
             m.placement = rest(Cell(value.x, value.y), value.orientation)
             m.fixed, m.real, m.moving = bool(value.fixed), value.kind == "real", False
-            return self._update(t_ns, [self._entity(m, t_ns)])
+            return self._update([self._entity(m, t_ns)])
         if isinstance(value, Actuators):
             m = self._module(value.module)
             before = m.actuators
@@ -96,17 +96,17 @@ class SceneView:
             if m.placement is None or (before is not None and before.magnets == value.magnets
                                        and before.joints_open == value.joints_open):
                 return None  # LEDs and ports only: not drawn in the scene
-            return self._update(t_ns, [self._entity(m, t_ns)])
+            return self._update([self._entity(m, t_ns)])
         if isinstance(value, WorldEvent) and value.kind == "move-started" and value.module:
             m = self._module(value.module)
             m.moving = True
-            return self._update(t_ns, [self._entity(m, t_ns)]) if m.placement is not None else None
+            return self._update([self._entity(m, t_ns)]) if m.placement is not None else None
         if isinstance(value, PlannerState):
             goal = [(int(c[0]), int(c[1])) for c in value.goal]
             if goal == self.goal:
                 return None
             self.goal = goal
-            return self._update(t_ns, [self._goal(t_ns)])
+            return self._update([self._goal(t_ns)])
         return None
 
     def feed_record(self, topic: str, obj: Any, t_ns: int) -> bytes | None:
@@ -123,11 +123,11 @@ class SceneView:
         entities = [self._entity(m, t_ns) for m in self.modules.values() if m.placement is not None]
         if self.goal:
             entities.append(self._goal(t_ns))
-        return self._update(t_ns, entities)
+        return self._update(entities)
 
     # -- entities -------------------------------------------------------------------------------------
     @staticmethod
-    def _update(t_ns: int, entities: list[SceneEntity]) -> bytes:
+    def _update(entities: list[SceneEntity]) -> bytes:
         return SceneUpdate(entities=entities).encode()
 
     def _entity(self, m: _Module, t_ns: int) -> SceneEntity:

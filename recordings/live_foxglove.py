@@ -24,6 +24,7 @@ from foxglove import Channel, Schema
 from bus.keys import Keys
 
 from .foxglove import SCENE_TOPICS, FrameLog, SceneView
+from .recorder import int_field
 from .schemas import LOG_TOPIC, SCENE_TOPIC, kind_of
 
 DEFAULT_HOST = "127.0.0.1"
@@ -100,14 +101,8 @@ class LiveFoxglove:
         if self._origin is None:
             t = time.time_ns()
         else:
-            i = payload.find(b'"sim_time_ns":')
-            t = self._last_ns
-            if i >= 0:
-                end = i + 14
-                while end < len(payload) and payload[end:end + 1].isdigit():
-                    end += 1
-                if end > i + 14:
-                    t = self._origin + int(payload[i + 14:end])
+            sim = int_field(payload, b'"sim_time_ns":')
+            t = self._origin + sim if isinstance(sim, int) and not isinstance(sim, bool) and sim >= 0 else self._last_ns
         self._last_ns = max(self._last_ns, t)
         return t
 

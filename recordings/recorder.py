@@ -104,10 +104,10 @@ class _Route:
         for name in self.required:
             if name not in payload:
                 return None
-        sim = _int_field(payload, b'"sim_time_ns":')
+        sim = int_field(payload, b'"sim_time_ns":')
         if sim is False or (sim is not None and sim < 0):
             return None
-        pub = _int_field(payload, b'"wall_time_ns":')
+        pub = int_field(payload, b'"wall_time_ns":')
         if pub is False:
             return None
         kind = None
@@ -119,7 +119,7 @@ class _Route:
         return sim, pub, kind
 
 
-def _int_field(payload: bytes, name: bytes) -> int | None | bool:
+def int_field(payload: bytes, name: bytes) -> int | None | bool:
     """The integer after the first ``name``; None if absent; False if not an integer."""
     i = payload.find(name)
     if i < 0:
