@@ -205,7 +205,7 @@ def header() -> str:
         goals = [move_rule(j, d).cells(Cell(0, 0))[2] for j in Joint]
         out.append(f"#define GOAL_{d.value}_DX {{0, " + ", ".join(str(g.x) for g in goals) + "}")
         out.append(f"#define GOAL_{d.value}_DY {{0, " + ", ".join(str(g.y) for g in goals) + "}")
-    out.append(f"/* Orientation change of a CW move (bus.rotations.orientation_after). */")
+    out.append("/* Orientation change of a CW move (bus.rotations.orientation_after). */")
     out.append(f"#define ORIENTATION_STEP_CW {rotations.orientation_after(0, Direction.CW)}")
     out += ["", "#endif", ""]
     return "\n".join(out)

@@ -19,7 +19,6 @@ from __future__ import annotations
 import atexit
 import itertools
 import json
-import os
 from dataclasses import dataclass
 from typing import Any, Callable
 

@@ -114,7 +114,7 @@ def _twin_checks(bus, scenario, fleet, bridges: list, hil_port: str | None) -> l
     """A live differential for every real module alone on its port: its answers on the
     centre channel against its twin's (several boards behind one transceiver cannot be told
     apart there)."""
-    from hil.bridge import CentreBridge, DebugBridge
+    from hil.bridge import DebugBridge
     from module_sim.twin import TwinCheck
 
     def say(d) -> None:

@@ -56,7 +56,7 @@ from bus.lattice import Cell
 
 from .moves import is_cut, lone_steps
 from .plan import Problem
-from .rules import Coord, hex_distance, neighbours_xy, occupancy_graph, xy
+from .rules import Coord, neighbours_xy, occupancy_graph, xy
 
 
 #: Below this many rows :func:`min_cost_assignment` runs its inner loop in plain Python:
