@@ -92,10 +92,10 @@ def _parse_meta(items: list[str]) -> dict[str, Any]:
 
 #: When told to stop, the recorder keeps taking samples until none came for this long (what
 #: peers had already sent is still on its way), but no longer than QUIET_MAX_S.
-QUIET_S, QUIET_MAX_S = 0.3, 5.0
+QUIET_S, QUIET_MAX_S = 0.5, 10.0
 
 
-def _take_in_flight(clock, rec) -> None:
+def _take_in_flight(clock, rec) -> float:
     """Record what was already sent to this process before stopping: nothing captured is lost."""
     last = [rec.messages, time.monotonic()]
 
@@ -104,11 +104,18 @@ def _take_in_flight(clock, rec) -> None:
             last[:] = [rec.messages, time.monotonic()]
         return time.monotonic() - last[1] >= QUIET_S
 
+    t0 = time.monotonic()
+    print(f"stopping: taking what is still on its way (until {QUIET_S:g} s pass with none, at most "
+          f"{QUIET_MAX_S:g} s; Ctrl-C again to stop now)", file=sys.stderr, flush=True)
     try:
         clock.run(until=quiet, timeout_s=QUIET_MAX_S)
     except KeyboardInterrupt:
         pass
     clock.drain(timeout_s=1.0)
+    if time.monotonic() - last[1] < QUIET_S:  # samples were still coming: say so, do not hide it
+        print(f"warning: samples were still arriving {QUIET_MAX_S:g} s after the stop; the recording "
+              "ends there", file=sys.stderr)
+    return time.monotonic() - t0
 
 
 def cmd_record(args: argparse.Namespace) -> int:

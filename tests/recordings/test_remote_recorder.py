@@ -78,5 +78,5 @@ def test_a_burst_of_50_000_frames_reaches_a_remote_recorder_whole(tmp_path):
         _, err = rec.communicate(timeout=120)
     assert rec.returncode == 0, err
     seqs = sorted(e.seq for e in read_frames(remote) if e.src == "burst")
-    assert seqs == list(range(n)), f"{n - len(seqs)} of {n} frames lost at {rate:,.0f} frames/s"
+    assert seqs == list(range(n)), f"{n - len(seqs)} of {n} frames lost at {rate:,.0f} frames/s; {err}"
     assert rate >= 10_000
