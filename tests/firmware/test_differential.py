@@ -3,16 +3,15 @@ firmware (simavr, cycle-exact). Same bytes on every stream, times within one tic
 
 from __future__ import annotations
 
-import shutil
 
 import pytest
 
 from bus.codec import encode_command
 from bus.timing import NS_PER_S, TICK_NS
 from module_sim.script import Event
+from toolchain import needs_avr
 
-pytestmark = pytest.mark.skipif(shutil.which("avr-gcc") is None,
-                                reason="needs the AVR toolchain (make test installs it)")
+pytestmark = needs_avr
 
 
 @pytest.mark.parametrize("profile", ["v2", "thesis-2009"])

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 from collections import Counter
@@ -15,10 +14,10 @@ from pathlib import Path
 
 import pytest
 from mcap.reader import make_reader
+from toolchain import needs_avr
 
 ROOT = Path(__file__).resolve().parents[2]
-pytestmark = pytest.mark.skipif(shutil.which("avr-gcc") is None,
-                                reason="needs the AVR toolchain (make test installs it)")
+pytestmark = needs_avr
 
 RUNS = {
     # the reference is the firmware: its twin's side light localizes the virtual module

@@ -3,15 +3,14 @@ same sim times as the Python programs, one library for any number of boards."""
 
 from __future__ import annotations
 
-import shutil
 
 import pytest
 
 from bus.codec import encode_command
 from bus.timing import NS_PER_S
+from toolchain import needs_avr
 
-pytestmark = pytest.mark.skipif(shutil.which("avr-gcc") is None,
-                                reason="needs the AVR toolchain (make test installs it)")
+pytestmark = needs_avr
 
 
 @pytest.mark.parametrize("profile", ["v2", "thesis-2009"])
