@@ -95,7 +95,7 @@ def _parse_meta(items: list[str]) -> dict[str, Any]:
 QUIET_S, QUIET_MAX_S = 0.5, 10.0
 
 
-def _take_in_flight(clock, rec) -> float:
+def _take_in_flight(clock, rec) -> None:
     """Record what was already sent to this process before stopping: nothing captured is lost."""
     last = [rec.messages, time.monotonic()]
 
@@ -104,7 +104,6 @@ def _take_in_flight(clock, rec) -> float:
             last[:] = [rec.messages, time.monotonic()]
         return time.monotonic() - last[1] >= QUIET_S
 
-    t0 = time.monotonic()
     print(f"stopping: taking what is still on its way (until {QUIET_S:g} s pass with none, at most "
           f"{QUIET_MAX_S:g} s; Ctrl-C again to stop now)", file=sys.stderr, flush=True)
     try:
@@ -115,7 +114,6 @@ def _take_in_flight(clock, rec) -> float:
     if time.monotonic() - last[1] < QUIET_S:  # samples were still coming: say so, do not hide it
         print(f"warning: samples were still arriving {QUIET_MAX_S:g} s after the stop; the recording "
               "ends there", file=sys.stderr)
-    return time.monotonic() - t0
 
 
 def cmd_record(args: argparse.Namespace) -> int:

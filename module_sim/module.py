@@ -196,11 +196,9 @@ class VirtualModule:
     def _overrun(self, board: Mcu, uart: Uart) -> Callable[[int], None]:
         def on(byte: int) -> None:
             self.overruns += 1
-            if board is self.comm and uart is self.comm.uart1:  # which transceiver it came through
-                self.bus.event(board.name, "uart-overrun", uart=uart.name, lost=byte,
-                               channel=self.comm.ir_transceiver)
-            else:
-                self.bus.event(board.name, "uart-overrun", uart=uart.name, lost=byte)
+            # an IR byte says which transceiver it came through (recordings.health sorts by it)
+            where = {"channel": self.comm.ir_transceiver} if uart is self.comm.uart1 else {}
+            self.bus.event(board.name, "uart-overrun", uart=uart.name, lost=byte, **where)
         return on
 
     def _ports_changed(self, mcu: Mcu) -> None:

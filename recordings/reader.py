@@ -125,6 +125,10 @@ class RecordingFile:
         The channels the recorder derives for Foxglove (protobuf, not bus samples) come only
         with ``derived=True`` or when ``topics`` names them."""
         wanted = None if topics is None else set(topics)
+
+        def keep(ch: Channel) -> bool:
+            return ch.topic in wanted if wanted is not None else derived or ch.message_encoding == "json"
+
         size = self.path.stat().st_size
         with open(self.path, "rb") as f:
             if f.read(len(MAGIC)) != MAGIC:
@@ -164,13 +168,11 @@ class RecordingFile:
                         ch = channels.get(rec[0])
                         if ch is None:
                             continue  # a message before its channel: not written by us
-                        if (ch.topic in wanted) if wanted is not None else (
-                                derived or ch.message_encoding == "json"):
+                        if keep(ch):
                             yield Sample(ch.topic, rec[2], rec[3], rec[4], rec[1])
                     elif isinstance(rec, Message):
                         ch = channels.get(rec.channel_id)
-                        if ch is not None and ((ch.topic in wanted) if wanted is not None else (
-                                derived or ch.message_encoding == "json")):
+                        if ch is not None and keep(ch):
                             yield Sample(ch.topic, rec.log_time, rec.publish_time, rec.data, rec.sequence)
 
     def _damaged(self, last: list[Any]) -> None:

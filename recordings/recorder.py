@@ -155,7 +155,6 @@ class Recorder:
         self._origin = 0  # added to sim times; set to start_ns once the time source is sim
         self._scene = SceneView() if foxglove else None
         self._frame_log = FrameLog() if foxglove else None
-        self._last_log_ns = 0
         self._done = Tally()  # counts of the closed parts
         self._part = Tally()  # counts of the open part (written into it when it closes)
         self.strict = strict
@@ -205,7 +204,7 @@ class Recorder:
             route = self._routes[key] = _Route.of(self.keys.relative(key))
         fields = route.scan(payload) if route.fast and not self.strict else None
         if fields is None:
-            self._write_checked(route.topic, key, payload, wall)
+            self._write_checked(route, key, payload, wall)
             return
         sim, pub, kind = fields
         with self._lock:
@@ -234,13 +233,11 @@ class Recorder:
             line = self._frame_log.log_payload(payload, kind, log_time)  # type: ignore[union-attr]
         except (ValueError, KeyError, TypeError):
             return  # not an envelope after all: the frame channel keeps it as it came
-        cid = self._cids.get(LOG_TOPIC)
-        if cid is None:
-            cid = self._cids[LOG_TOPIC] = self._sink.channel(LOG_TOPIC)
-        self._sink.write_to(cid, line, log_time, log_time)  # at a frame's time: no _last_log_ns
+        self._derived(LOG_TOPIC, line, log_time)
 
-    def _write_checked(self, topic: str, key: str, payload: bytes, wall: int) -> None:
+    def _write_checked(self, route: _Route, key: str, payload: bytes, wall: int) -> None:
         """The careful path: decode the whole payload, check its schema's required fields."""
+        topic = route.topic
         try:
             obj = _decode(payload.decode("utf-8"))
         except ValueError as exc:  # UnicodeDecodeError is a ValueError
@@ -267,7 +264,7 @@ class Recorder:
                 return
             if self._scene is not None and topic.startswith(SCENE_TOPICS):
                 self._to_scene(topic, obj, log_time)
-            elif self._frame_log is not None and topic.startswith("frame/") and isinstance(obj, dict):
+            elif self._frame_log is not None and route.frame and isinstance(obj, dict):
                 self._log_frame(payload, obj.get("kind") if isinstance(obj.get("kind"), str) else None, log_time)
             if topic == "meta" and isinstance(obj, dict) and not self._closed:
                 self.meta = meta_mod.merge(self.meta, RunMeta.from_dict(obj))
@@ -307,14 +304,12 @@ class Recorder:
         if cid is None:
             cid = self._cids[topic] = self._sink.channel(topic)
         self._sink.write_to(cid, data, log_time, log_time)
-        if log_time > self._last_log_ns:
-            self._last_log_ns = log_time
 
     def _snapshot(self) -> None:
         """The whole scene, at the latest time written: each part ends on (and a reader of the
         last scene message finds) every module where it is."""
         if self._scene is not None and self._scene.modules:
-            t = max(self._last_log_ns, self._part.last_ns or 0)
+            t = max((x for x in (self._part.last_ns, self._done.last_ns) if x is not None), default=0)
             self._derived(SCENE_TOPIC, self._scene.snapshot(t), t)
 
     # -- parts and rotation --------------------------------------------------------------------
