@@ -28,7 +28,7 @@ firmware: $(SYSTEM) $(STAMP)
 # Many tests wait on the wall clock (real-time fleets, simavr boots): xdist runs them side by side.
 test: $(SYSTEM) $(STAMP) firmware
 	$(VENV)/bin/lint-imports --no-logo
-	$(PY) -m pytest -q -n 3 tests hexbench/conformance --ignore=tests/benchmarks
+	$(PY) -m pytest -q -n 2 tests hexbench/conformance --ignore=tests/benchmarks
 	$(PY) -m pytest -q --pyargs hexbench.conformance --hexbench-target firmware
 	$(PY) -m pytest -q -n 8 --pyargs hexbench.conformance --hexbench-target simavr
 
