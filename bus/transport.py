@@ -33,6 +33,10 @@ from .session import SessionOptions, open_session
 
 Handler = Callable[[str, bytes], None]
 
+#: The key of the flush barrier (a verbatim ``@`` chunk: no ``hexbot/**`` matches it), and how
+#: long a closing session waits for the answers of the processes that subscribe to it.
+FLUSH_KEY, FLUSH_TIMEOUT_S = f"{ROOT}/@flush", 10.0
+
 
 @dataclass(eq=False)
 class Subscription:
@@ -68,6 +72,8 @@ class _Hub:
         self.order = itertools.count()  # publish order of every sample put here
         self.index = itertools.count()
         self.remote: dict[str, Any] = {}  # zenoh subscribers for samples from elsewhere
+        self.flush_answer: Any = None  # the queryable of :meth:`flush`, with the first of them
+        self.sent = False  # whether anything was put on zenoh through this session
         self.users = 0
 
     def add(self, sub: Subscription) -> None:
@@ -83,6 +89,10 @@ class _Hub:
         if scope not in self.remote:
             self.remote[scope] = self.session.declare_subscriber(
                 scope, self._from_elsewhere, allowed_origin=zenoh.Locality.REMOTE)
+        if self.flush_answer is None:
+            # a flush query arrives behind every sample its sender put before it: answering it
+            # says they are all in this process (on their clocks' inboxes)
+            self.flush_answer = self.session.declare_queryable(FLUSH_KEY, lambda q: q.reply(FLUSH_KEY, b""))
 
     def remove(self, sub: Subscription) -> None:
         canon = str(sub.keyexpr)
@@ -109,7 +119,21 @@ class _Hub:
         for sub in self.matches(key):
             sub.clock.post(_deliver_foreign, sub, key, data)
 
+    def flush(self, timeout_s: float = FLUSH_TIMEOUT_S) -> None:
+        """Return once every process subscribed here holds what this session put: a query
+        behind the samples on the same reliable, same-priority lane, answered by each of them.
+        Closing a session drops what its links still queue for a slow subscriber."""
+        replies = self.session.get(FLUSH_KEY, target=zenoh.QueryTarget.ALL,
+                                   consolidation=zenoh.ConsolidationMode.NONE,
+                                   congestion_control=zenoh.CongestionControl.BLOCK,
+                                   allowed_destination=zenoh.Locality.REMOTE, timeout=timeout_s)
+        for _ in replies:  # ends when all answered, or at the timeout
+            pass
+
     def close(self) -> None:
+        if self.flush_answer is not None:
+            self.flush_answer.undeclare()
+            self.flush_answer = None
         for sub in self.remote.values():
             try:
                 sub.undeclare()
@@ -189,6 +213,7 @@ class Bus:
             sub.clock.post(_deliver, sub, key, payload, order=(order, sub.index))
         pub = self._publishers.get(key) or self._publisher(key)
         pub.put(payload)
+        hub.sent = True
         self.published += 1
 
     def _publisher(self, key: str) -> Any:
@@ -272,6 +297,8 @@ class Bus:
             hub.close()
             _HUBS.pop(id(self.session), None)
         if self._own_session:
+            if hub.sent:
+                hub.flush()
             self.session.close()
 
 

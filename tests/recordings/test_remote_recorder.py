@@ -80,3 +80,49 @@ def test_a_burst_of_50_000_frames_reaches_a_remote_recorder_whole(tmp_path):
     seqs = sorted(e.seq for e in read_frames(remote) if e.src == "burst")
     assert seqs == list(range(n)), f"{n - len(seqs)} of {n} frames lost at {rate:,.0f} frames/s; {err}"
     assert rate >= 10_000
+
+
+def test_a_recorder_far_behind_still_gets_the_tail_when_the_publisher_closes(tmp_path):
+    """A closing session drops what its links still queue: ``Bus.close()`` first waits for the
+    flush barrier, answered by the recorder once it holds every sample put before it. The
+    recorder is kept behind by stopping it most of the time (10k of 50k frames were lost so)."""
+    import threading
+
+    from bus import Frame, Kind, Link, SessionOptions, WallClock
+    from bus.transport import Bus
+
+    port = 18900 + os.getpid() % 400
+    fleet = f"behind{os.getpid()}"
+    remote = tmp_path / "behind.mcap"
+    rec = _remote_recorder(port, fleet, remote)
+    n = 20_000
+    bus = Bus(WallClock(), fleet, options=SessionOptions(connect=[f"tcp/127.0.0.1:{port}"]))
+    stop = threading.Event()
+
+    def hold_back() -> None:
+        while not stop.is_set():
+            os.kill(rec.pid, signal.SIGSTOP)
+            stop.wait(0.3)
+            os.kill(rec.pid, signal.SIGCONT)
+            stop.wait(0.01)
+
+    throttle = threading.Thread(target=hold_back)
+    try:
+        assert rec.stdout.readline().startswith("recording "), rec.stderr.read()
+        probe = Frame(Link.DEBUG, Kind.NOISE, b"\x00", {"reason": "behind test"})
+        assert bus.wait_remote(bus.keys.frame("debug", "behind"), timeout_s=30)
+        throttle.start()
+        for _ in range(n):
+            bus.publish_frame(probe, src="behind", dst="terminal")
+        bus.close()
+    finally:
+        stop.set()
+        if throttle.is_alive():
+            throttle.join()
+        os.kill(rec.pid, signal.SIGCONT)
+        bus.close()
+        rec.send_signal(signal.SIGTERM)
+        _, err = rec.communicate(timeout=120)
+    assert rec.returncode == 0, err
+    seqs = sorted(e.seq for e in read_frames(remote) if e.src == "behind")
+    assert seqs == list(range(n)), f"{n - len(seqs)} of {n} frames lost; {err}"
