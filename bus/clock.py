@@ -63,6 +63,13 @@ class Clock(ABC):
     def now_ns(self) -> int:
         """Current time of the run (ns since the clock started)."""
 
+    def due_ns(self) -> int:
+        """When the event being handled was due: :meth:`now_ns` on a virtual clock. A wall
+        clock runs a timer a little late (later still on a loaded machine); stamping what
+        it does with its due time keeps the program's own intervals (a 3-tick drive stays
+        30 ms). Samples from elsewhere are due when they arrive."""
+        return self.now_ns()
+
     @staticmethod
     def wall_ns() -> int:
         return time.time_ns()
@@ -198,6 +205,10 @@ class WallClock(Clock):
         # times, and a receiver in another process schedules them on its own clock.
         self._offset = time.time_ns() - time.monotonic_ns()
         self.started_ns = self.now_ns()
+        self._due: int | None = None  # the due time of the timer running now
+
+    def due_ns(self) -> int:
+        return self.now_ns() if self._due is None else self._due
 
     def now_ns(self) -> int:
         """Unix time in ns, advanced monotonically (the same in every process)."""
@@ -250,7 +261,11 @@ class WallClock(Clock):
                         wait = min(wait, left)
                     self._lock.wait(max(wait, 0.0))
             if due is not None:
-                self._fire(due.fn, due.args)
+                self._due = due.t_ns
+                try:
+                    self._fire(due.fn, due.args)
+                finally:
+                    self._due = None
             elif deadline is not None and time.monotonic() > deadline:
                 return
 

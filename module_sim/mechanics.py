@@ -127,7 +127,7 @@ class Mechanics:
 
     def _wake(self) -> None:
         self._wake_at = None
-        now = self.bus.clock.now_ns()
+        now = self.bus.clock.due_ns()
         self._handle(self.judge.advance(max(now, self.judge.now_ns)))
 
     def _reschedule(self) -> None:

@@ -78,6 +78,7 @@ class VirtualModule:
             for uart in (board.uart0, board.uart1):
                 uart.on_overrun = self._overrun(board, uart)
         self._actuators_pending = False
+        self._actuators_ns = 0
         self._actuators_key = bus.keys.actuators(self.name)
         bus.subscribe(bus.keys.ir_rx(self.name), self._ir_in.on_message)
         bus.subscribe_json(bus.keys.switches(self.name), self._on_switches)
@@ -208,11 +209,13 @@ class VirtualModule:
                 self._ir_k = k
                 if self._ir_flight:
                     self._ir_switched(k)
+        self._actuators_ns = self.bus.clock.due_ns()  # when the port changed, not when told
         if not self._actuators_pending:
             self._actuators_pending = True
             self.bus.clock.call_later(0, self._publish_actuators)
 
-    def actuators(self) -> Actuators:
+    def actuators(self, sim_time_ns: int | None = None) -> Actuators:
+        """The actuator record of the ports now (stamped ``sim_time_ns``, default now)."""
         c, m = self.ctrl.port, self.comm.port
 
         def bit(ports: dict[str, int], pin) -> bool:
@@ -220,7 +223,8 @@ class VirtualModule:
 
         joints, magnets = self.ctrl.actuator_bits()
         return Actuators(
-            module=self.name, sim_time_ns=self.bus.clock.now_ns(),
+            module=self.name,
+            sim_time_ns=self.bus.clock.now_ns() if sim_time_ns is None else sim_time_ns,
             joints_open=joints, magnets=magnets,
             led_pos=[not bit(m, LED_POS[s]) for s in range(1, 7)],
             led_neg=[not bit(m, LED_NEG[s]) for s in range(1, 7)],
@@ -230,7 +234,7 @@ class VirtualModule:
 
     def _publish_actuators(self) -> None:
         self._actuators_pending = False
-        a = self.actuators()
+        a = self.actuators(self._actuators_ns)
         # ``a.to_json()`` byte for byte (same keys and order), without asdict's deep copies
         self.bus.put(self._actuators_key, _dumps({
             "module": a.module, "sim_time_ns": a.sim_time_ns, "joints_open": a.joints_open,

@@ -73,6 +73,31 @@ def test_wall_clock_runs_posted_work_and_timers():
     assert seen == ["post", "timer"] and clock.now_ns() >= 20_000_000
 
 
+def test_a_late_timer_on_the_wall_clock_knows_when_it_was_due():
+    """A timer held up by a slow one runs late: ``due_ns`` is still its due time (what a
+    module stamps its actuator changes with), ``now_ns`` the real time; work posted from
+    elsewhere is due when it runs."""
+    import time
+
+    clock = WallClock()
+    t0 = clock.now_ns()
+    seen = []
+
+    def slow() -> None:
+        end = time.monotonic() + 0.02
+        while time.monotonic() < end:  # holds the clock thread, as a loaded machine does
+            pass
+
+    clock.call_at(t0 + 1_000_000, slow)
+    clock.call_at(t0 + 2_000_000, lambda: seen.append((clock.due_ns(), clock.now_ns())))
+    clock.run(until=lambda: bool(seen), timeout_s=5)
+    due, now = seen[0]
+    assert due == t0 + 2_000_000 and now >= t0 + 20_000_000
+    clock.post(lambda: seen.append((clock.due_ns(), clock.now_ns())))
+    clock.run(until=lambda: len(seen) == 2, timeout_s=5)
+    assert seen[1][0] >= now
+
+
 def test_wall_clock_drain_handles_every_local_sample_published_so_far():
     """zenoh calls each subscriber on its own thread: a subscriber to everything (a recorder)
     can lag behind one to a single key. ``drain`` waits for it; a timer is not run."""
