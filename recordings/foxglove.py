@@ -2,7 +2,8 @@
 
 Built with Foxglove's own SDK (``foxglove-sdk``: its message classes and their protobuf
 schemas), so the Foxglove app's 3D and Log panels open a recording, or a live run, with no
-converter. One :class:`SceneView` and one :class:`FrameLog` serve both places: the recorder
+converter. One :class:`FoxgloveView` (a :class:`SceneView` and a :class:`FrameLog`) serves both
+places: the recorder
 writes their messages into the MCAP file beside the bus's JSON channels
 (:data:`recordings.schemas.SCENE_TOPIC`, :data:`~recordings.schemas.LOG_TOPIC`), and the
 live server (:mod:`recordings.live_foxglove`) sends them over Foxglove's WebSocket protocol.
@@ -17,6 +18,7 @@ writes one when it closes, so the last scene message is the whole final state).
 
 from __future__ import annotations
 
+import json
 import re
 from functools import lru_cache
 from typing import Any, Iterable
@@ -31,7 +33,7 @@ from bus.lattice import Cell
 from bus.messages import Actuators, PlannerState, Pose, WorldEvent
 
 from .lines import FrameLines
-from .schemas import kind_of
+from .schemas import LOG_TOPIC, SCENE_TOPIC, kind_of
 from .scene import (FIXED, GOAL, JOINT_CLOSED, JOINT_INSET, JOINT_OPEN, MAGNET_COLOURS, MAGNET_INSET, MOVING,
                     Placement, module_colour, rest)
 
@@ -286,3 +288,37 @@ def module_cells(update: Any) -> Iterable[tuple[str, tuple[int, int]]]:
         if "cell" in meta:
             x, y = meta["cell"].split(",")
             yield e.id, (int(x), int(y))
+
+
+_UNDECODED = object()
+
+
+class FoxgloveView:
+    """What Foxglove's panels get from the bus's samples: the one derivation the recorder
+    and the live server share."""
+
+    def __init__(self) -> None:
+        self.scene = SceneView()
+        self.log = FrameLog()
+
+    def derive(self, topic: str, payload: bytes, t_ns: int, *, obj: Any = _UNDECODED,
+               kind: str | None = None) -> tuple[str, bytes] | None:
+        """The derived message of one sample (``topic`` relative to the fleet), as
+        ``(topic, encoded protobuf)``, or None: a frame's Log line, or the scene update a
+        pose, actuator record, world event or planner state leads to. ``obj`` is the payload
+        decoded already, ``kind`` the frame's kind if known. A payload that is not what its
+        topic says derives nothing (its own channel keeps it as it came)."""
+        if topic.startswith("frame/"):
+            try:
+                return LOG_TOPIC, self.log.log_payload(payload, kind, t_ns)
+            except (ValueError, KeyError, TypeError):
+                return None
+        if topic.startswith(SCENE_TOPICS):
+            if obj is _UNDECODED:
+                try:
+                    obj = json.loads(payload)
+                except ValueError:
+                    return None
+            update = self.scene.feed_record(topic, obj, t_ns)
+            return None if update is None else (SCENE_TOPIC, update)
+        return None

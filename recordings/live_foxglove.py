@@ -13,7 +13,6 @@ whole scene again (a snapshot is sent on every new subscription to the scene).
 
 from __future__ import annotations
 
-import json
 import threading
 import time
 from typing import Any
@@ -23,9 +22,9 @@ from foxglove import Channel, Schema
 
 from bus.keys import Keys
 
-from .foxglove import SCENE_TOPICS, FrameLog, SceneView
+from .foxglove import FoxgloveView
 from .recorder import int_field
-from .schemas import LOG_TOPIC, SCENE_TOPIC, kind_of
+from .schemas import SCENE_TOPIC, kind_of
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765
@@ -44,8 +43,7 @@ class LiveFoxglove:
         self._origin: int | None = None  # start_ns on a virtual clock, None: wall time
         self._context = foxglove.Context()
         self._channels: dict[str, Channel] = {}
-        self._scene = SceneView()
-        self._log = FrameLog()
+        self._fox = FoxgloveView()
         self._lock = threading.Lock()
         self._last_ns = 0
         self._closed = False
@@ -83,19 +81,9 @@ class LiveFoxglove:
                 return
             t = self._time(payload)
             self._channel(topic).log(payload, log_time=t)
-            if topic.startswith("frame/"):
-                try:
-                    self._channel(LOG_TOPIC).log(self._log.log_payload(payload, None, t), log_time=t)
-                except (ValueError, KeyError, TypeError):
-                    pass
-            elif topic.startswith(SCENE_TOPICS):
-                try:
-                    obj = json.loads(payload)
-                except ValueError:
-                    return
-                update = self._scene.feed_record(topic, obj, t)
-                if update is not None:
-                    self._channel(SCENE_TOPIC).log(update, log_time=t)
+            out = self._fox.derive(topic, payload, t)
+            if out is not None:
+                self._channel(out[0]).log(out[1], log_time=t)
 
     def _time(self, payload: bytes) -> int:
         if self._origin is None:
@@ -109,8 +97,8 @@ class LiveFoxglove:
     def snapshot(self) -> None:
         """Send the whole scene again (a new viewer sees every module at once)."""
         with self._lock:
-            if self._scene.modules and not self._closed:
-                self._channel(SCENE_TOPIC).log(self._scene.snapshot(self._last_ns), log_time=self._last_ns)
+            if self._fox.scene.modules and not self._closed:
+                self._channel(SCENE_TOPIC).log(self._fox.scene.snapshot(self._last_ns), log_time=self._last_ns)
 
     def close(self) -> None:
         """Stop serving (clients are disconnected)."""

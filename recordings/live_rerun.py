@@ -19,6 +19,7 @@ from collections import deque
 from typing import Any, Callable
 from urllib.parse import urlsplit
 
+import fastjsonschema
 import rerun as rr
 
 from bus.envelope import Envelope
@@ -40,9 +41,6 @@ _decode_json = json.JSONDecoder().decode
 HOLD_BACK_NS = 1_000_000_000
 #: A lattice larger than this is not drawn (a pose far away, bogus or not, would stall flushes).
 MAX_GRID_CELLS = 40_000
-_JSON_TYPES: dict[str, type | tuple[type, ...]] = {"string": str, "integer": int, "number": (int, float),
-                                                   "boolean": bool, "null": type(None), "array": list,
-                                                   "object": dict}
 
 
 class LiveRerun:
@@ -247,86 +245,17 @@ def open_stream(*, connect: str | None = None, spawn: bool = False,
     return rec
 
 
-Check = Callable[[Any], "str | None"]
-_checks: dict[str, Check] = {}
+_checks: dict[str, Callable[[Any], Any]] = {}
 
 
 def _misfit(value: Any, kind: ChannelKind) -> str | None:
-    """Why ``value`` breaks ``kind``'s schema, or None (schemaless kinds take anything)."""
+    """Why ``value`` breaks ``kind``'s JSON Schema (``x must be integer``), or None; schemaless
+    kinds take anything. Validators are compiled once per kind: every frame is checked."""
     check = _checks.get(kind.name)
     if check is None:
-        check = _checks[kind.name] = _compile(kind.schema) if kind.schema else (lambda v: None)
-    return check(value)
-
-
-def _compile(schema: dict[str, Any]) -> Check:
-    """A checker of the JSON Schema subset :mod:`recordings.schemas` uses (compiled once per
-    channel kind: every frame of a run is checked). Keywords it does not know pass."""
-    either = schema.get("anyOf") or schema.get("oneOf")  # oneOf as anyOf: permissive is enough here
-    if either:
-        options = [_compile(o) for o in either]
-        return lambda v: None if any(o(v) is None for o in options) else "none of its types"
-    checks: list[Check] = []
-    if "const" in schema:
-        const = schema["const"]
-        checks.append(lambda v: None if v == const else f"{v!r} is not {const!r}")
-    types = schema.get("type")
-    if types is not None:
-        names = [types] if isinstance(types, str) else list(types)
-        py = tuple({t for n in names for t in _as_tuple(_JSON_TYPES.get(n, object))})
-        numeric = "integer" in names or "number" in names
-        bool_ok = "boolean" in names or not numeric  # JSON booleans are not numbers (bool is an int in Python)
-        wanted = "/".join(names)
-
-        def check_type(v: Any) -> str | None:
-            if isinstance(v, py) and (bool_ok or not isinstance(v, bool)):
-                return None
-            return f"{type(v).__name__} is not {wanted}"
-        checks.append(check_type)
-    if "enum" in schema:
-        allowed = schema["enum"]
-        checks.append(lambda v: None if v in allowed else f"{v!r} is not one of {allowed}")
-    if "items" in schema:
-        item = _compile(schema["items"])
-
-        def check_items(v: Any) -> str | None:
-            if isinstance(v, list):
-                for i, x in enumerate(v):
-                    wrong = item(x)
-                    if wrong:
-                        return f"[{i}]{'' if wrong[0] in '[.' else ': '}{wrong}"
-            return None
-        checks.append(check_items)
-    props = {k: _compile(v) for k, v in schema.get("properties", {}).items() if v}
-    extra = schema.get("additionalProperties")
-    other = _compile(extra) if isinstance(extra, dict) and extra else None
-    required = tuple(schema.get("required", ()))
-    if props or other or required:
-        def check_fields(v: Any) -> str | None:
-            if not isinstance(v, dict):
-                return None
-            for name in required:
-                if name not in v:
-                    return f"{name} missing"
-            for name, x in v.items():
-                sub = props.get(name, other)
-                if sub is not None:
-                    wrong = sub(x)
-                    if wrong:
-                        return f"{name}{'' if wrong[0] in '[.' else ': '}{wrong}"
-            return None
-        checks.append(check_fields)
-    if len(checks) == 1:
-        return checks[0]
-
-    def check_all(v: Any) -> str | None:
-        for c in checks:
-            wrong = c(v)
-            if wrong:
-                return wrong
-        return None
-    return check_all
-
-
-def _as_tuple(t: type | tuple[type, ...]) -> tuple[type, ...]:
-    return t if isinstance(t, tuple) else (t,)
+        check = _checks[kind.name] = fastjsonschema.compile(kind.schema) if kind.schema else (lambda v: v)
+    try:
+        check(value)
+    except fastjsonschema.JsonSchemaValueException as exc:
+        return exc.message.removeprefix("data.").removeprefix("data ")
+    return None

@@ -35,8 +35,8 @@ from bus.keys import Keys
 from bus.messages import RunMeta
 
 from . import meta as meta_mod
-from .foxglove import SCENE_TOPICS, FrameLog, SceneView
-from .schemas import FRAME, IR_LIGHT, LOG_TOPIC, RECORDER_ERROR_TOPIC, SCENE_TOPIC, UNTYPED, kind_of
+from .foxglove import FoxgloveView
+from .schemas import FRAME, IR_LIGHT, RECORDER_ERROR_TOPIC, SCENE_TOPIC, UNTYPED, kind_of
 from .sink import CHUNK_SIZE, McapSink
 from .stats import Tally, kind_field
 
@@ -153,8 +153,7 @@ class Recorder:
         self.meta["start_time_ns"] = self.start_ns
         self.meta["start_time"] = meta_mod.iso_time(self.start_ns)
         self._origin = 0  # added to sim times; set to start_ns once the time source is sim
-        self._scene = SceneView() if foxglove else None
-        self._frame_log = FrameLog() if foxglove else None
+        self._fox = FoxgloveView() if foxglove else None
         self._done = Tally()  # counts of the closed parts
         self._part = Tally()  # counts of the open part (written into it when it closes)
         self.strict = strict
@@ -224,16 +223,8 @@ class Recorder:
                 cid = self._cids[route.topic] = self._sink.channel(route.topic)
             self._sink.write_to(cid, payload, log_time, wall if pub is None else pub)
             self._part.add_kind(route.topic, kind, log_time)
-            if route.frame and self._frame_log is not None:
-                self._log_frame(payload, kind, log_time)
-
-    def _log_frame(self, payload: bytes, kind: str | None, log_time: int) -> None:
-        """The frame's foxglove.Log line (under the lock)."""
-        try:
-            line = self._frame_log.log_payload(payload, kind, log_time)  # type: ignore[union-attr]
-        except (ValueError, KeyError, TypeError):
-            return  # not an envelope after all: the frame channel keeps it as it came
-        self._derived(LOG_TOPIC, line, log_time)
+            if route.frame and self._fox is not None:
+                self._derive(route.topic, payload, log_time, kind=kind)
 
     def _write_checked(self, route: _Route, key: str, payload: bytes, wall: int) -> None:
         """The careful path: decode the whole payload, check its schema's required fields."""
@@ -262,10 +253,9 @@ class Recorder:
             self._write_locked(topic, payload, obj, log_time, pub if isinstance(pub, int) else wall)
             if self._closed:
                 return
-            if self._scene is not None and topic.startswith(SCENE_TOPICS):
-                self._to_scene(topic, obj, log_time)
-            elif self._frame_log is not None and route.frame and isinstance(obj, dict):
-                self._log_frame(payload, obj.get("kind") if isinstance(obj.get("kind"), str) else None, log_time)
+            if self._fox is not None:
+                kind = obj.get("kind") if isinstance(obj, dict) else None
+                self._derive(topic, payload, log_time, obj=obj, kind=kind if isinstance(kind, str) else None)
             if topic == "meta" and isinstance(obj, dict) and not self._closed:
                 self.meta = meta_mod.merge(self.meta, RunMeta.from_dict(obj))
                 self._sink.add_metadata(self.meta)
@@ -292,11 +282,12 @@ class Recorder:
         self._part.add(topic, obj, log_time)
 
     # -- what the recorder derives for Foxglove ------------------------------------------------------
-    def _to_scene(self, topic: str, obj: Any, log_time: int) -> None:
-        assert self._scene is not None
-        update = self._scene.feed_record(topic, obj, log_time)
-        if update is not None:
-            self._derived(SCENE_TOPIC, update, log_time)
+    def _derive(self, topic: str, payload: bytes, log_time: int, **known: Any) -> None:
+        """The sample's Foxglove message, if it leads to one (under the lock)."""
+        assert self._fox is not None
+        out = self._fox.derive(topic, payload, log_time, **known)
+        if out is not None:
+            self._derived(*out, log_time)
 
     def _derived(self, topic: str, data: bytes, log_time: int) -> None:
         """A message of the recorder's own (not a bus sample: not in the tally)."""
@@ -308,9 +299,9 @@ class Recorder:
     def _snapshot(self) -> None:
         """The whole scene, at the latest time written: each part ends on (and a reader of the
         last scene message finds) every module where it is."""
-        if self._scene is not None and self._scene.modules:
+        if self._fox is not None and self._fox.scene.modules:
             t = max((x for x in (self._part.last_ns, self._done.last_ns) if x is not None), default=0)
-            self._derived(SCENE_TOPIC, self._scene.snapshot(t), t)
+            self._derived(SCENE_TOPIC, self._fox.scene.snapshot(t), t)
 
     # -- parts and rotation --------------------------------------------------------------------
     @property
