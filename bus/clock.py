@@ -94,6 +94,12 @@ class Clock(ABC):
             self._inbox.append((key, fn, args))
             self._lock.notify()
 
+    def post_foreign(self, sender: str, fn: Callable[..., Any], *args: Any) -> None:
+        """Thread-safe: a sample from another process (``sender``: the name it carries, or
+        ""). Handled as it comes, like :meth:`post`; a lockstep clock holds it for its
+        window's end (:mod:`bus.lockstep`)."""
+        self.post(fn, *args)
+
     # -- running ----------------------------------------------------------------------------
     def stop(self) -> None:
         with self._lock:

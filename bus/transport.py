@@ -74,6 +74,7 @@ class _Hub:
         self.remote: dict[str, Any] = {}  # zenoh subscribers for samples from elsewhere
         self.flush_answer: Any = None  # the queryable of :meth:`flush`, with the first of them
         self.sent = False  # whether anything was put on zenoh through this session
+        self.control: list[tuple[str, Callable[[str, str, bytes], None]]] = []  # see Bus.on_control
         self.users = 0
 
     def add(self, sub: Subscription) -> None:
@@ -116,8 +117,14 @@ class _Hub:
         in arrival order."""
         key = str(sample.key_expr)
         data = sample.payload.to_bytes()
+        att = sample.attachment
+        sender = att.to_bytes().decode("utf-8", "replace") if att is not None else ""
+        for prefix, fn in self.control:
+            if key.startswith(prefix):
+                fn(sender, key, data)
+                return
         for sub in self.matches(key):
-            sub.clock.post(_deliver_foreign, sub, key, data)
+            sub.clock.post_foreign(sender, _deliver_foreign, sub, key, data)
 
     def flush(self, timeout_s: float = FLUSH_TIMEOUT_S) -> None:
         """Return once every process subscribed here holds what this session put: a query
@@ -199,7 +206,18 @@ class Bus:
         self._seq: dict[str, int] = {}
         self.published = 0
         self.closed = False
+        self._attachment: bytes | None = None
         atexit.register(self.close)
+
+    @property
+    def sender(self) -> str | None:
+        """The name this bus's samples carry to other processes (a zenoh attachment), for
+        receivers that order them by sender (:mod:`bus.lockstep`); None: no name."""
+        return None if self._attachment is None else self._attachment.decode()
+
+    @sender.setter
+    def sender(self, name: str | None) -> None:
+        self._attachment = None if name is None else name.encode()
 
     # -- publishing ----------------------------------------------------------------------
     def put(self, key: str, payload: bytes) -> None:
@@ -212,7 +230,10 @@ class Bus:
         for sub in hub.matches(key):
             sub.clock.post(_deliver, sub, key, payload, order=(order, sub.index))
         pub = self._publishers.get(key) or self._publisher(key)
-        pub.put(payload)
+        if self._attachment is None:
+            pub.put(payload)
+        else:
+            pub.put(payload, attachment=self._attachment)
         hub.sent = True
         self.published += 1
 
@@ -284,6 +305,19 @@ class Bus:
             keyexpr = self.keys.frames if link is None else self.keys.frames_of(link)
         return self.subscribe(keyexpr, lambda k, p: handler(Envelope.from_json(p)),
                               who=participant(handler))
+
+    def on_control(self, prefix: str, fn: Callable[[str, str, bytes], None]) -> None:
+        """Samples from other processes whose key starts with ``prefix`` go to
+        ``fn(sender, key, payload)`` at once, on zenoh's thread, not to the clock: control
+        traffic (the lockstep barrier) that must be seen while the clock waits, in arrival
+        order with the samples that came before it from the same process. Needs a
+        subscription of this session under ``hexbot/`` (samples arrive through it)."""
+        self._hub.control.append((prefix, fn))
+
+    def flush(self) -> None:
+        """Return once every other process subscribed to this session's samples holds all
+        that it put so far (at most 10 s)."""
+        self._hub.flush()
 
     def close(self) -> None:
         if self.closed:

@@ -57,6 +57,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_live_argument(p)
     p.set_defaults(func=cmd_monitor)
 
+    p = sub.add_parser("router", help="run a zenoh router that fleets spread over hosts connect to",
+                       description="A zenoh router (mode router) and nothing else, until Ctrl-C: "
+                                   "participants on other hosts give --connect to its endpoint. "
+                                   "Security is zenoh's own (--zenoh-config: TLS, access control).")
+    p.add_argument("--listen", action="append", metavar="ENDPOINT",
+                   help="endpoint to listen on (repeatable; default tcp/127.0.0.1:7447)")
+    p.add_argument("--connect", action="append", metavar="ENDPOINT", help="another router (repeatable)")
+    p.add_argument("--zenoh-config", metavar="FILE", help="a zenoh JSON5 config to start from")
+    p.add_argument("--seconds", type=float, help="stop after this many seconds")
+    p.set_defaults(func=cmd_router)
+
     _add_demo(sub)
 
 
@@ -165,6 +176,29 @@ def cmd_send(args: argparse.Namespace) -> int:
 
 def command_describe(frame: bytes) -> str:
     return parse(Link.PC, frame).describe()
+
+
+def cmd_router(args: argparse.Namespace) -> int:
+    import signal
+    import threading
+
+    from bus.session import SessionOptions, open_session
+
+    listen = args.listen or ["tcp/127.0.0.1:7447"]
+    try:
+        session = open_session(SessionOptions(mode="router", listen=listen, connect=args.connect or [],
+                                              config=args.zenoh_config))
+    except Exception as exc:  # zenoh.ZError: the endpoint is taken or malformed
+        raise UsageError(f"router: cannot listen on {', '.join(listen)}: {str(exc).split(' at /')[0]}") from None
+    done = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: done.set())
+    print(f"router {session.zid()} listening on {', '.join(listen)}", flush=True)
+    try:
+        done.wait(args.seconds)
+    except KeyboardInterrupt:
+        pass
+    session.close()
+    return 0
 
 
 def cmd_scenarios(args: argparse.Namespace) -> int:

@@ -1,0 +1,211 @@
+"""One virtual clock across processes: conservative lockstep windows over zenoh.
+
+A virtual run is deterministic in one process (``bus.session`` isolates it). Spread over
+processes, each participant (a shard of a fleet, the planner's process, a recorder) keeps
+its own :class:`LockstepClock` and they move together, window by window, as conservative
+parallel discrete-event simulation does:
+
+* Window ``k`` is sim time ``[k*W, (k+1)*W)``. A participant runs its events of the window,
+  then says so on ``hexbot/<fleet>/@lockstep/window/<name>`` and waits until every other
+  participant has said the same.
+* Its samples of the window went out before that word, on the same reliable lane of the same
+  session, so when the last word arrives every sample another process put in window ``k`` is
+  here too: held, not handled. They are handled at the window's end, ``(k+1)*W``, before
+  anything else there, by sender name, then in the order each sender put them: an order that
+  depends on the run alone, not on thread timing.
+* **The lookahead contract.** A sample that crosses processes is handled up to one window
+  after it was put. So what it causes must lie at least ``W`` after it (the IR medium's light
+  has a byte time: 33.3 ms at 300 baud), and its handler must act on the times it carries,
+  not on the time it is handled. Then the run gives the frames the one-process run gives.
+* **Liveness.** Every participant holds a zenoh liveliness token. One that vanishes (its
+  process killed, its link cut) ends the others at the barrier of the window they are in,
+  with :class:`PeerLost` naming it; one that stays silent ends them after ``timeout_s``.
+* All participants stop at the same boundary: the first window after which one of them
+  asked to stop (``run(until=...)``).
+
+The cost per window is one small sample from each participant to each other and a wait for
+the slowest: with ``W`` = 30 ms and a fleet running near real time that is ~33 barriers per
+wall second.
+"""
+
+from __future__ import annotations
+
+import atexit
+import json
+import threading
+import time
+from typing import Any, Callable, Iterable
+
+import zenoh
+
+from .clock import ClockError, VirtualClock
+from .keys import ROOT, check_chunk
+from .transport import Bus
+
+
+#: How long a peer whose token went may still have its last word on the way.
+GONE_GRACE_S = 0.5
+
+
+class PeerLost(ClockError):
+    """A participant of a lockstep run left it before the end."""
+
+
+class LockstepClock(VirtualClock):
+    """A :class:`VirtualClock` whose samples from other processes wait for the window's
+    barrier (:class:`Lockstep`) instead of being handled as they arrive."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._held: dict[str, list[tuple[Callable[..., Any], tuple[Any, ...]]]] = {}
+
+    def post_foreign(self, sender: str, fn: Callable[..., Any], *args: Any) -> None:
+        with self._lock:
+            self._held.setdefault(sender, []).append((fn, args))
+
+    def release(self, at_ns: int) -> int:
+        """Time moves to ``at_ns`` (a window boundary) and the held samples are handled
+        there, by sender, each sender's in arrival order. Returns how many."""
+        with self._lock:
+            held, self._held = self._held, {}
+        self._now = max(self._now, at_ns)
+        n = 0
+        for sender in sorted(held):
+            for fn, args in held[sender]:
+                self._inbox.append(((float(n), 0), fn, args))
+                n += 1
+        self._settle()
+        return n
+
+
+class Lockstep:
+    """One participant's side of a lockstep run (see the module's docstring).
+
+    Make the participant's subscriptions on ``bus`` first: a peer starts sending once it sees
+    this participant's token, which zenoh delivers after the subscriptions declared before it.
+    """
+
+    def __init__(self, bus: Bus, name: str, peers: Iterable[str], window_ns: int, *,
+                 timeout_s: float = 60.0) -> None:
+        if not isinstance(bus.clock, LockstepClock):
+            raise TypeError("a lockstep participant needs a LockstepClock")
+        if window_ns <= 0:
+            raise ValueError(f"window {window_ns} ns: must be positive")
+        self.bus, self.clock = bus, bus.clock
+        self.name = check_chunk(name, "participant")
+        self.peers = sorted({check_chunk(p, "participant") for p in peers} - {self.name})
+        self.window_ns = window_ns
+        self.timeout_s = timeout_s
+        self.window = 0  # the window this participant runs next
+        self.released = 0  # samples from elsewhere handled at boundaries
+        self._cond = threading.Condition()
+        self._said: dict[str, int] = {}  # peer -> the last window it finished
+        self._stops: dict[str, int] = {}  # peer -> the window after which it stops
+        self._present: set[str] = set()
+        self._gone: set[str] = set()
+        bus.sender = self.name
+        # The word is a bus sample: it travels behind this participant's other samples and
+        # arrives through the same subscriber, on the same zenoh thread, so when it is seen
+        # they have all been taken (zenoh runs each subscriber's callbacks on its own thread:
+        # a word on a subscriber of its own could overtake them).
+        self._word_key = f"{bus.keys.root}/lockstep/window/{self.name}"
+        bus.subscribe(f"{bus.keys.root}/lockstep/window/*", lambda k, p: None, who="lockstep")
+        bus.on_control(f"{bus.keys.root}/lockstep/window/", self._on_word)
+        live = f"{ROOT}/{bus.keys.fleet}/@lockstep/live"
+        session = bus.session
+        self._alive = session.liveliness().declare_subscriber(f"{live}/*", self._on_live, history=True)
+        self._token = session.liveliness().declare_token(f"{live}/{self.name}")
+        self.closed = False
+        # before the bus's own (atexit runs last in, first out): zenoh objects left to the
+        # interpreter's finalization can hang it
+        atexit.register(self.close)
+
+    # -- zenoh threads ---------------------------------------------------------------------
+    def _on_word(self, sender: str, key: str, payload: bytes) -> None:
+        who = key.rsplit("/", 1)[-1]
+        try:
+            d = json.loads(payload)
+            k = int(d["window"])
+        except (ValueError, KeyError, TypeError):
+            return  # not a word of ours: the barrier waits for a good one
+        with self._cond:
+            self._said[who] = max(self._said.get(who, -1), k)
+            if d.get("stop"):
+                self._stops.setdefault(who, k)
+            self._cond.notify_all()
+
+    def _on_live(self, sample: zenoh.Sample) -> None:
+        who = str(sample.key_expr).rsplit("/", 1)[-1]
+        with self._cond:
+            if sample.kind == zenoh.SampleKind.DELETE:
+                self._present.discard(who)
+                self._gone.add(who)
+            else:
+                self._present.add(who)
+            self._cond.notify_all()
+
+    # -- the clock thread ------------------------------------------------------------------
+    def wait_for_peers(self, timeout_s: float | None = None) -> None:
+        """Return once every peer is there (``ClockError`` naming the missing ones if not)."""
+        timeout = self.timeout_s if timeout_s is None else timeout_s
+        with self._cond:
+            if not self._cond.wait_for(lambda: self._present >= set(self.peers), timeout):
+                missing = sorted(set(self.peers) - self._present)
+                raise ClockError(f"lockstep {self.name}: {', '.join(missing)} did not join within "
+                                 f"{timeout:g} s")
+
+    def run(self, *, until: Callable[[], bool] | None = None, until_ns: int | None = None) -> None:
+        """Run window after window until this participant or a peer asks to stop (``until()``
+        holds at a window's end, or the window reaches ``until_ns``); every participant stops
+        at the same boundary. :class:`PeerLost` if a peer leaves first."""
+        self.wait_for_peers()
+        w = self.window_ns
+        while True:
+            k = self.window
+            end = (k + 1) * w
+            self.clock.run(until_ns=end - 1)
+            stop = self.clock.stopped or (until is not None and until()) or \
+                (until_ns is not None and end >= until_ns)
+            self.bus.put_json(self._word_key, {"window": k, "stop": bool(stop), "sim_time_ns": end})
+            others_stop = self._barrier(k)
+            self.released += self.clock.release(end)
+            self.window = k + 1
+            if stop or others_stop:
+                return
+
+    def _barrier(self, k: int) -> bool:
+        """Wait for every peer's word on window ``k``; whether one of them stops after it."""
+        deadline = time.monotonic() + self.timeout_s
+        gone_since: float | None = None
+        with self._cond:
+            while True:
+                behind = [p for p in self.peers if self._said.get(p, -1) < k]
+                if not behind:
+                    return any(s <= k for s in self._stops.values())
+                gone = [p for p in behind if p in self._gone]
+                if gone and gone_since is None:
+                    # a finished peer's token may go before its last word is taken here
+                    gone_since = time.monotonic()
+                if gone and time.monotonic() - gone_since >= GONE_GRACE_S:
+                    raise PeerLost(f"lockstep: {', '.join(gone)} left the run in window {k} (sim "
+                                   f"{k * self.window_ns / 1e9:.3f}-{(k + 1) * self.window_ns / 1e9:.3f} s): "
+                                   "its process ended or its link broke")
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise ClockError(f"lockstep: no word from {', '.join(behind)} on window {k} within "
+                                     f"{self.timeout_s:g} s")
+                self._cond.wait(min(left, GONE_GRACE_S / 4) if gone else left)
+
+    def close(self) -> None:
+        """Leave the run: every word said reaches the peers before the token goes (a peer
+        must not take a finished participant for a lost one)."""
+        if self.closed:
+            return
+        self.closed = True
+        if not self.bus.closed:
+            self.bus.flush()
+        for thing in (self._token, self._alive):
+            try:
+                thing.undeclare()
+            except Exception:  # the session may be closing already
+                pass

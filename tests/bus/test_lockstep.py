@@ -1,0 +1,79 @@
+"""One virtual clock across processes (bus.lockstep): participants in processes of their own,
+peer to peer or through a zenoh router, give the one-process run's events at the same sim
+times; a participant killed mid-run ends the others at that window's barrier, named."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from tests.support.lockstep_toy import UNTIL_NS, WINDOW_NS, one_process
+
+
+def _toy(name: str, fleet: str, out, *extra: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "tests.support.lockstep_toy", name, "--fleet", fleet,
+                             "--out", str(out), *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+
+
+def _finish(procs: list[subprocess.Popen]) -> list[tuple[int, str]]:
+    out = []
+    for p in procs:
+        try:
+            _, err = p.communicate(timeout=120)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            _, err = p.communicate()
+        out.append((p.returncode, err))
+    return out
+
+
+def _check_against_one_process(tmp_path, fleet: str) -> None:
+    reference = one_process(fleet + "ref")
+    for name in "ab":
+        got = json.loads((tmp_path / f"{name}.json").read_text())
+        assert got["windows"] == UNTIL_NS // WINDOW_NS
+        assert got["released"] > 50  # messages really crossed processes
+        assert got["log"] == [e for e in reference if e[1] == name]
+
+
+@pytest.mark.parametrize("through", ["peers", "router"])
+def test_two_processes_in_lockstep_give_the_one_process_events(tmp_path, through):
+    port = 19000 + os.getpid() % 500 + (500 if through == "router" else 0)
+    fleet = f"lock{through}{os.getpid()}"
+    procs: list[subprocess.Popen] = []
+    if through == "router":
+        router = subprocess.Popen([sys.executable, "-m", "hexbench", "router", "--listen",
+                                   f"tcp/127.0.0.1:{port}"], stdout=subprocess.PIPE, text=True)
+        try:
+            assert router.stdout.readline().startswith("router ")
+            procs = [_toy(n, fleet, tmp_path / f"{n}.json", "--mode", "client", "--connect",
+                          f"tcp/127.0.0.1:{port}") for n in "ab"]
+            results = _finish(procs)
+        finally:
+            router.terminate()
+            router.wait(timeout=30)
+    else:
+        procs = [_toy("a", fleet, tmp_path / "a.json", "--listen", f"tcp/127.0.0.1:{port}"),
+                 _toy("b", fleet, tmp_path / "b.json", "--connect", f"tcp/127.0.0.1:{port}")]
+        results = _finish(procs)
+    assert [rc for rc, _ in results] == [0, 0], results
+    _check_against_one_process(tmp_path, fleet)
+
+
+def test_a_participant_killed_mid_run_ends_the_other_at_that_window(tmp_path):
+    port = 20000 + os.getpid() % 500
+    fleet = f"lockkill{os.getpid()}"
+    a = _toy("a", fleet, tmp_path / "a.json", "--listen", f"tcp/127.0.0.1:{port}")
+    b = _toy("b", fleet, tmp_path / "b.json", "--connect", f"tcp/127.0.0.1:{port}", "--die-in-window", "10")
+    (rc_a, err_a), (rc_b, _) = _finish([a, b])
+    assert rc_b == -9
+    assert rc_a == 3, err_a
+    assert "b left the run in window 10 (sim 0.200-0.220 s)" in err_a
+    got = json.loads((tmp_path / "a.json").read_text())
+    assert got["windows"] == 10  # it finished windows 0-9 and stopped at 10's barrier
+    assert got["log"] == [e for e in one_process(fleet + "ref") if e[1] == "a" and e[0] < 11 * WINDOW_NS]
