@@ -15,6 +15,7 @@ import json
 import os
 import signal
 import sys
+import time
 from typing import Any
 
 from bus import SessionOptions, VirtualClock
@@ -77,20 +78,28 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--mode", default="peer")
     p.add_argument("--out", required=True)
     p.add_argument("--die-in-window", type=int, help="kill this process (SIGKILL) in window K")
+    p.add_argument("--window-ns", type=int, default=WINDOW_NS)
+    p.add_argument("--idle", action="store_true", help="no ticks, no messages: the barrier alone")
     args = p.parse_args(argv)
     me, other = args.name, "b" if args.name == "a" else "a"
     clock = LockstepClock()
     bus = Bus(clock, args.fleet, options=SessionOptions(mode=args.mode, listen=args.listen,
                                                         connect=args.connect))
     log: list[list[Any]] = []
-    build(bus, me, other, log)
+    if args.idle:
+        bus.subscribe(f"{bus.keys.root}/toy/{me}", lambda k, p: None)  # samples arrive through it
+    else:
+        build(bus, me, other, log)
     if args.die_in_window is not None:
         clock.call_at(args.die_in_window * WINDOW_NS + WINDOW_NS // 2,
                       lambda: os.kill(os.getpid(), signal.SIGKILL))
-    step = Lockstep(bus, me, ["a", "b"], WINDOW_NS, timeout_s=30)
+    step = Lockstep(bus, me, ["a", "b"], args.window_ns, timeout_s=30)
     print("ready", flush=True)
     try:
+        step.wait_for_peers()
+        t0 = time.perf_counter()
         step.run(until_ns=UNTIL_NS)
+        print(f"windows {step.window} in {time.perf_counter() - t0:.3f} s", flush=True)
     except PeerLost as exc:
         print(f"error: {exc}", file=sys.stderr, flush=True)
         return 3

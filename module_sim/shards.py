@@ -1,0 +1,68 @@
+"""Shards of a fleet: which modules each process of a fleet spread over processes runs.
+
+IR side light crosses a shard's border over zenoh (a :mod:`bus.lockstep` window late), so a
+partition keeps neighbours together: the fewest neighbour pairs cut, parts of equal size
+(the processes get equal work). Strips across the lattice's longer extent give a balanced
+start; Kernighan-Lin bisection (networkx, seeded: the same scenario gives the same parts)
+then trades modules across each border while that cuts fewer pairs. More than two parts:
+recursive bisection, sizes in proportion.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import networkx as nx
+
+from bus.lattice import Cell
+
+
+def neighbour_graph(cells: Sequence[Cell]) -> nx.Graph:
+    """Cells (by index) joined where two share a side."""
+    index = {c: i for i, c in enumerate(cells)}
+    g = nx.Graph()
+    g.add_nodes_from(range(len(cells)))
+    for i, c in enumerate(cells):
+        for n in c.neighbours():
+            j = index.get(n)
+            if j is not None and j > i:
+                g.add_edge(i, j)
+    return g
+
+
+def partition(cells: Sequence[Cell], parts: int, *, seed: int = 0) -> list[int]:
+    """The part (0..parts-1) of each cell: as equal in size as can be, few neighbours apart."""
+    if parts < 1:
+        raise ValueError(f"{parts} parts: need at least 1")
+    if parts > len(cells):
+        raise ValueError(f"{parts} parts for {len(cells)} modules: at most one part per module")
+    g = neighbour_graph(cells)
+    out = [0] * len(cells)
+
+    def split(nodes: list[int], first: int, count: int) -> None:
+        if count == 1:
+            for i in nodes:
+                out[i] = first
+            return
+        left_parts = count // 2
+        # strips across the longer extent: a balanced, compact start
+        xs = [cells[i].centre() for i in nodes]
+        spread_x = max(p[0] for p in xs) - min(p[0] for p in xs)
+        spread_y = max(p[1] for p in xs) - min(p[1] for p in xs)
+        axis = 0 if spread_x >= spread_y else 1
+        order = sorted(nodes, key=lambda i: (cells[i].centre()[axis], cells[i].centre()[1 - axis], i))
+        cut = round(len(order) * left_parts / count)
+        left, right = set(order[:cut]), set(order[cut:])
+        if len(left) == len(right):  # Kernighan-Lin swaps pairs: it keeps the sizes only when equal
+            left, right = nx.community.kernighan_lin_bisection(g.subgraph(nodes), (left, right),
+                                                               seed=seed)
+        split(sorted(left), first, left_parts)
+        split(sorted(right), first + left_parts, count - left_parts)
+
+    split(list(range(len(cells))), 0, parts)
+    return out
+
+
+def cut_pairs(cells: Sequence[Cell], part: Sequence[int]) -> int:
+    """How many neighbour pairs the partition puts in different parts."""
+    return sum(1 for i, j in neighbour_graph(cells).edges if part[i] != part[j])
