@@ -58,6 +58,35 @@ class LockstepClock(VirtualClock):
     def __init__(self) -> None:
         super().__init__()
         self._held: dict[str, list[tuple[Callable[..., Any], tuple[Any, ...]]]] = {}
+        self.lockstep: Lockstep | None = None  # set by Lockstep: until then, a plain virtual clock
+        self.ended = False  # every participant stopped at a barrier: nothing more will run
+        #: called with each boundary's time once the samples held for it are handled: work
+        #: that needs a window's samples from everywhere, in time order (the world's physics)
+        self.at_boundary: list[Callable[[int], None]] = []
+
+    def run(self, *, until_ns: int | None = None, until: Callable[[], bool] | None = None,
+            timeout_s: float | None = None) -> None:
+        """As :meth:`VirtualClock.run`, window by window: time crosses a window's end only
+        at the barrier, with every peer. Returns when ``until()`` holds (mid-window too),
+        ``until_ns`` is reached, the participants stopped (:meth:`Lockstep.finish`, or a
+        peer's), or ``timeout_s`` wall seconds passed (``ClockError``)."""
+        step = self.lockstep
+        if step is None:
+            return super().run(until_ns=until_ns, until=until, timeout_s=timeout_s)
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        step.wait_for_peers()
+        while not self.ended:
+            end = (step.window + 1) * step.window_ns
+            limit = end - 1 if until_ns is None else min(end - 1, until_ns)
+            left = None if deadline is None else max(deadline - time.monotonic(), 0.001)
+            super().run(until_ns=limit, until=until, timeout_s=left)
+            if (until is not None and until()) or (until_ns is not None and self._now >= until_ns):
+                return
+            if self._stopped and not step.stopping:
+                return  # stop(): this participant pauses; finish() ends the run for all
+            if deadline is not None and time.monotonic() > deadline:
+                raise ClockError(f"lockstep run did not finish within {timeout_s} wall seconds")
+            step.cross()
 
     def post_foreign(self, sender: str, fn: Callable[..., Any], *args: Any) -> None:
         with self._lock:
@@ -74,6 +103,9 @@ class LockstepClock(VirtualClock):
             for fn, args in held[sender]:
                 self._inbox.append(((float(n), 0), fn, args))
                 n += 1
+        self._settle()
+        for fn in self.at_boundary:
+            fn(at_ns)
         self._settle()
         return n
 
@@ -96,7 +128,8 @@ class Lockstep:
         self.peers = sorted({check_chunk(p, "participant") for p in peers} - {self.name})
         self.window_ns = window_ns
         self.timeout_s = timeout_s
-        self.window = 0  # the window this participant runs next
+        self.window = 0  # the window this participant is in
+        self.stopping = False
         self.released = 0  # samples from elsewhere handled at boundaries
         self._cond = threading.Condition()
         self._said: dict[str, int] = {}  # peer -> the last window it finished
@@ -116,6 +149,8 @@ class Lockstep:
         self._alive = session.liveliness().declare_subscriber(f"{live}/*", self._on_live, history=True)
         self._token = session.liveliness().declare_token(f"{live}/{self.name}")
         self.closed = False
+        self._joined = False
+        bus.clock.lockstep = self
         # before the bus's own (atexit runs last in, first out): zenoh objects left to the
         # interpreter's finalization can hang it
         atexit.register(self.close)
@@ -147,31 +182,45 @@ class Lockstep:
     # -- the clock thread ------------------------------------------------------------------
     def wait_for_peers(self, timeout_s: float | None = None) -> None:
         """Return once every peer is there (``ClockError`` naming the missing ones if not)."""
+        if self._joined:
+            return
         timeout = self.timeout_s if timeout_s is None else timeout_s
         with self._cond:
             if not self._cond.wait_for(lambda: self._present >= set(self.peers), timeout):
                 missing = sorted(set(self.peers) - self._present)
                 raise ClockError(f"lockstep {self.name}: {', '.join(missing)} did not join within "
                                  f"{timeout:g} s")
+        self._joined = True
 
-    def run(self, *, until: Callable[[], bool] | None = None, until_ns: int | None = None) -> None:
-        """Run window after window until this participant or a peer asks to stop (``until()``
-        holds at a window's end, or the window reaches ``until_ns``); every participant stops
-        at the same boundary. :class:`PeerLost` if a peer leaves first."""
-        self.wait_for_peers()
-        w = self.window_ns
-        while True:
-            k = self.window
-            end = (k + 1) * w
-            self.clock.run(until_ns=end - 1)
-            stop = self.clock.stopped or (until is not None and until()) or \
-                (until_ns is not None and end >= until_ns)
-            self.bus.put_json(self._word_key, {"window": k, "stop": bool(stop), "sim_time_ns": end})
-            others_stop = self._barrier(k)
-            self.released += self.clock.release(end)
-            self.window = k + 1
-            if stop or others_stop:
-                return
+    def cross(self) -> None:
+        """The barrier at the end of the current window (its events all run): say so, wait
+        for every peer, handle what they sent at the boundary; the run ends there if this
+        participant or a peer asked to."""
+        k = self.window
+        end = (k + 1) * self.window_ns
+        self.bus.put_remote(self._word_key, json.dumps(
+            {"window": k, "stop": self.stopping, "sim_time_ns": end}).encode())
+        others_stop = self._barrier(k)
+        self.released += self.clock.release(end)
+        self.window = k + 1
+        if self.stopping or others_stop:
+            self.clock.ended = True
+
+    def finish(self) -> None:
+        """End the run for every participant at the end of the current window (this one's
+        events of it still run)."""
+        self.stopping = True
+        self.clock._stopped = False
+        self.clock.run()
+
+    def run(self, *, until_ns: int | None = None) -> None:
+        """Run every window (and its barrier) until all participants stop; with ``until_ns``
+        (a window boundary), stop them all there."""
+        if until_ns is None:
+            self.clock.run()
+        else:
+            self.clock.run(until_ns=until_ns - 1)
+            self.finish()
 
     def _barrier(self, k: int) -> bool:
         """Wait for every peer's word on window ``k``; whether one of them stops after it."""

@@ -229,13 +229,19 @@ class Bus:
         order = next(hub.order)
         for sub in hub.matches(key):
             sub.clock.post(_deliver, sub, key, payload, order=(order, sub.index))
+        self.put_remote(key, payload)
+        self.published += 1
+
+    def put_remote(self, key: str, payload: bytes) -> None:
+        """Publish to other processes only (what :meth:`put` does after the local delivery;
+        alone, for control traffic this process's subscribers have no use for: the lockstep
+        words)."""
         pub = self._publishers.get(key) or self._publisher(key)
         if self._attachment is None:
             pub.put(payload)
         else:
             pub.put(payload, attachment=self._attachment)
-        hub.sent = True
-        self.published += 1
+        self._hub.sent = True
 
     def _publisher(self, key: str) -> Any:
         pub = self._publishers.get(key)

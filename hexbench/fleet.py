@@ -30,6 +30,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--real", action="append", default=[], metavar="ID=PORT[,DEBUG_PORT]",
                    help="module ID is a real board (bridged by 'hexbench hil'): the world runs "
                         "its twin; repeatable")
+    p.add_argument("--program", choices=["model", "firmware"], help="what virtual modules run")
+    p.add_argument("--shard", metavar="K/N",
+                   help="with --clock virtual: run part K of N of the fleet (its modules and its "
+                        "part of the world) on a lockstep clock shared with the other parts and "
+                        "the planner's process ('hexbench run --shards N' starts them; docs/bus.md)")
     add_bus_arguments(p)
     p.set_defaults(func=cmd_fleet)
 
@@ -41,9 +46,11 @@ def cmd_fleet(args: argparse.Namespace) -> int:
 
     try:
         sc = override(load(args.scenario), seed=args.seed, profile=args.profile, faults=args.fault,
-                      real=args.real)
+                      real=args.real, program=args.program)
     except (ScenarioError, ValueError) as exc:
         raise UsageError(str(exc)) from None
+    if args.shard is not None:
+        return _shard(args, sc)
     if args.clock == "virtual" and args.seconds is None:
         raise UsageError("--clock virtual needs --seconds: nothing else can join a virtual run")
     bus = open_bus(args)
@@ -70,3 +77,53 @@ def cmd_fleet(args: argparse.Namespace) -> int:
     finally:
         bus.close()
     return 0
+
+
+def _shard(args: argparse.Namespace, sc) -> int:
+    """One part of a fleet on a lockstep clock, until the planner's process ends the run."""
+    from bus.lockstep import Lockstep, LockstepClock
+    from bus.timing import NS_PER_S
+    from module_sim.fleet import Fleet
+    from module_sim.shards import parse_shard, participants, shard_name, window_ns
+
+    try:
+        k, n = parse_shard(args.shard)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    check_shardable(sc, n)
+    if args.clock != "virtual":
+        raise UsageError("--shard runs on the virtual clock (a lockstep clock shared by the shards): "
+                         "give --clock virtual")
+    w = window_ns(sc.ir_baud)
+    bus = open_bus(args, LockstepClock())
+    clock = bus.clock
+    step = None
+    try:
+        fleet = Fleet(bus, sc, shard=(k, n), slack_ns=2 * w)
+        step = Lockstep(bus, shard_name(k), participants(n), w)
+        fleet.power_up(freeze_gc=len(fleet.modules) >= 200)
+        print(f"shard {k}/{n} of {sc.name}: modules {', '.join(f'm{i}' for i in sorted(fleet.modules))}; "
+              f"window {w / 1e6:g} ms", flush=True)
+        clock.run()
+        moves = sum(1 for o in fleet.world.mechanics.outcomes
+                    if type(o).__name__ == "MoveCompleted" and o.module in fleet.world.own)
+        print(f"shard {k}/{n}: ended at {clock.now_ns() / NS_PER_S:.3f} s sim after {step.window} windows; "
+              f"{moves} moves of its modules, {fleet.world.collisions} IR collisions", flush=True)
+    finally:
+        if step is not None:
+            step.close()
+        bus.close()
+    return 0
+
+
+def check_shardable(sc, n: int) -> None:
+    """What a fleet spread over shards cannot have (``UsageError`` saying why)."""
+    if n < 1 or n > len(sc.modules):
+        raise UsageError(f"{n} shards for {len(sc.modules)} modules: give 1 to {len(sc.modules)}")
+    real = [f"m{m.id}" for m in sc.modules if m.kind != "virtual"]
+    if real:
+        raise UsageError(f"scenario {sc.name!r} has real or firmware modules ({', '.join(real)}): "
+                         "shards run virtual modules only")
+    if sc.bit_error_rate:
+        raise UsageError(f"scenario {sc.name!r} has a bit error rate: its seeded noise follows the order "
+                         "light arrives in, which shards change; run it in one process")

@@ -52,6 +52,10 @@ def add_run_arguments(p: argparse.ArgumentParser, *, with_fleet: bool) -> None:
         p.add_argument("--fault", action="append", default=[], metavar="SPEC",
                        help="inject an actuator fault through the world, e.g. m3.S2-:off or "
                             "m3.J4:closed (repeatable)")
+        p.add_argument("--shards", type=int, metavar="N",
+                       help="with --clock virtual: spread the fleet over N processes (hexbench fleet "
+                            "--shard K/N, started here) on one lockstep clock: the same frames as one "
+                            "process (docs/bus.md)")
         p.add_argument("--hil-port", metavar="URL",
                        help="the central IR transceiver of the scenario's real modules (any "
                             "pyserial URL); default: their 'port' in the scenario")
@@ -182,13 +186,27 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
     if compare and not args.record:
         import tempfile
         args.record = Path(tempfile.mkdtemp(prefix="hexbench-compare")) / "firmware.mcap"
-    bus = open_bus(args)
+    shards = getattr(args, "shards", None)
+    if shards is not None:
+        from .fleet import check_shardable
+        if args.clock != "virtual":
+            raise UsageError("--shards spreads a virtual run over processes: give --clock virtual")
+        check_shardable(scenario, shards)
+        if not (args.connect or args.listen):  # the shards join this process on loopback
+            args.listen = [f"tcp/127.0.0.1:{_free_port()}"]
+    if shards is not None:
+        from bus.lockstep import LockstepClock
+        bus = open_bus(args, LockstepClock())
+    else:
+        bus = open_bus(args)
     clock = bus.clock
     recorder = None
     lives: list = []
     bridges: list = []
     checks: list = []
     firmware: list = []
+    children: list = []
+    step = None
     progress = Progress().__enter__()  # a bar on a terminal; ended before the summary lines
     bus.subscribe(bus.keys.planner("progress"), progress.on_planner_progress)
     try:
@@ -208,7 +226,9 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
                      + (f", faults {', '.join(map(str, scenario.faults))}" if scenario.faults else ""))
         progress.phase("boot")
         service = PlannerService(bus, scenario, args.planner, timing=timing, say=phase_sayer(progress))
-        if with_fleet:  # after the service subscribed: it sees the world's first poses
+        if shards is not None:
+            step = _start_shards(args, bus, scenario, shards, children, progress)
+        elif with_fleet:  # after the service subscribed: it sees the world's first poses
             from module_sim.fleet import Fleet
             bridges.extend(_bridges(bus, scenario, getattr(args, "hil_port", None)))
             fleet = Fleet(bus, scenario)
@@ -216,7 +236,10 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
             fleet.power_up()
         result = service.run(since)
         progress.__exit__()
-        if with_fleet:
+        if step is not None:
+            step.finish()  # every shard stops at this window's end
+            _end_shards(children)
+        elif with_fleet:
             fleet.world.mechanics.publish_run_energy()
             if not clock.drain(timeout_s=DRAIN_S):
                 print(f"warning: some bus samples had not arrived after {DRAIN_S:g} s; the "
@@ -226,6 +249,11 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
         print(result.summary(), flush=True)
     finally:
         progress.__exit__()
+        if step is not None:
+            step.close()
+        for child in children:  # a failed run: no shard outlives it
+            if child.poll() is None:
+                child.terminate()
         for close in lives:
             close()
         for b in bridges:
@@ -240,6 +268,63 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
     if compare:
         return _compare_model(args, scenario, result.ok)
     return 0 if result.ok else 1
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _start_shards(args: argparse.Namespace, bus, scenario, n: int, children: list, progress):
+    """The PC's part of the world here, the fleet in ``n`` shard processes, all on one lockstep
+    clock (docs/bus.md)."""
+    import subprocess
+    import tempfile
+
+    from bus.lockstep import Lockstep
+    from module_sim.shards import PLANNER, participants, window_ns
+    from module_sim.world import World
+
+    w = window_ns(scenario.ir_baud)
+    World(bus, scenario, own=set(), pc=True, physics=False, slack_ns=2 * w)  # light to the PC
+    step = Lockstep(bus, PLANNER, participants(n), w)
+    endpoints = args.connect or [ep.replace("0.0.0.0", "127.0.0.1") for ep in args.listen]
+    for k in range(n):
+        argv = [sys.executable, "-m", "hexbench", "fleet", args.scenario, "--clock", "virtual",
+                "--shard", f"{k}/{n}", "--fleet", args.fleet, "--mode", args.mode]
+        for ep in endpoints:
+            argv += ["--connect", ep]
+        for flag, value in (("--seed", args.seed), ("--profile", args.profile),
+                            ("--program", args.program), ("--zenoh-config", args.zenoh_config)):
+            if value is not None:
+                argv += [flag, str(value)]
+        for f in getattr(args, "fault", []):
+            argv += ["--fault", f]
+        log = tempfile.TemporaryFile(mode="w+")
+        child = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT)
+        child.log = log  # type: ignore[attr-defined]
+        children.append(child)
+    progress.say(f"shards: {n} processes ({', '.join(str(c.pid) for c in children)}), lockstep "
+                 f"window {w / 1e6:g} ms")
+    return step
+
+
+def _end_shards(children: list, timeout_s: float = 60.0) -> None:
+    """Wait for the shards to end; a shard that failed says why."""
+    for k, child in enumerate(children):
+        try:
+            child.wait(timeout=timeout_s)
+        except Exception:
+            child.kill()
+            child.wait()
+        if child.returncode != 0:
+            child.log.seek(0)
+            tail = child.log.read().strip().splitlines()[-3:]
+            print(f"warning: shard {k} ended with exit code {child.returncode}: {' | '.join(tail)}",
+                  flush=True)
 
 
 def _compare_model(args: argparse.Namespace, scenario, ok: bool) -> int:

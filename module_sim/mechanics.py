@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, Iterable
 
 from bus.faults import ActuatorFault, apply_all
 from bus.lattice import Cell
@@ -43,12 +43,23 @@ class Mechanics:
     def __init__(self, bus: Bus, bodies: dict[str, Body], obstacles: set[Cell],
                  on_moved: Callable[[MoveCompleted], None], *,
                  faults: list[ActuatorFault] | None = None,
-                 params: PhysicsParams = PhysicsParams()) -> None:
+                 params: PhysicsParams = PhysicsParams(),
+                 own: Iterable[str] | None = None, lagged: bool = False) -> None:
+        """``own``: the modules whose outcomes this world publishes (a shard's; default all).
+        ``lagged`` (a shard on a lockstep clock): actuator records from every shard are
+        judged at each window's end, in time order, once all of the window's are here; so
+        every shard's replica of the physics reaches the same outcomes, each publishing its
+        own modules'. Outcomes are then published up to one window late (docs/bus.md)."""
         self.bus = bus
         self.params = params
         self.judge = MotionJudge([ModuleSpec(b.module, b.cell, b.orientation, b.fixed)
                                   for b in bodies.values()], obstacles, params)
         self.modules = frozenset(bodies)
+        self.own = self.modules if own is None else frozenset(own)
+        self.lagged = lagged
+        self._queue: list[tuple[int, str, list[bool], list[int]]] = []  # lagged: records to judge
+        if lagged:
+            bus.clock.at_boundary.append(self._at_boundary)  # type: ignore[attr-defined]
         self.meter = EnergyMeter()
         self.on_moved = on_moved
         self.faults: dict[str, list[ActuatorFault]] = {}
@@ -70,9 +81,10 @@ class Mechanics:
         if fault.module not in self.modules:
             raise KeyError(f"fault {fault}: no module {fault.module!r} in this world")
         self.faults.setdefault(fault.module, []).append(fault)
-        self.bus.put(self.bus.keys.world_event, WorldEvent(
-            "fault-injected", self.bus.clock.now_ns(), fault.module, "injected",
-            {"fault": str(fault), "detail": fault.describe()}).to_json())
+        if fault.module in self.own:
+            self.bus.put(self.bus.keys.world_event, WorldEvent(
+                "fault-injected", self.bus.clock.now_ns(), fault.module, "injected",
+                {"fault": str(fault), "detail": fault.describe()}).to_json())
         if fault.module in self._commanded:
             self._feed(fault.module, self.bus.clock.now_ns(), *self._commanded[fault.module])
 
@@ -101,7 +113,18 @@ class Mechanics:
         if a.origin != "virtual" and (a.origin == "serial") != (a.module in self.board_bits):
             return
         self._commanded[a.module] = (list(a.joints_open), list(a.magnets))
+        if self.lagged:
+            self._queue.append((a.sim_time_ns, a.module, list(a.joints_open), list(a.magnets)))
+            return
         self._feed(a.module, a.sim_time_ns, list(a.joints_open), list(a.magnets))
+
+    def _at_boundary(self, t_ns: int) -> None:
+        """Lagged: judge the window's records from everywhere in time order, and what falls
+        due before the boundary."""
+        queue, self._queue = sorted(self._queue, key=lambda r: (r[0], r[1])), []
+        for t, module, joints, magnets in queue:
+            self._feed(module, t, joints, magnets)
+        self._handle(self.judge.advance(max(t_ns - 1, self.judge.now_ns)))
 
     def bits(self, module: str) -> tuple[list[bool], list[int]] | None:
         """The joints and magnets the body of ``module`` follows now (before faults)."""
@@ -131,6 +154,8 @@ class Mechanics:
         self._handle(self.judge.advance(max(now, self.judge.now_ns)))
 
     def _reschedule(self) -> None:
+        if self.lagged:
+            return  # deadlines are judged at the boundaries
         due = self.judge.next_deadline()
         if due is not None and (self._wake_at is None or due < self._wake_at):
             self._wake_at = due
@@ -140,6 +165,11 @@ class Mechanics:
     def _handle(self, outcomes: list[Outcome]) -> None:
         for o in outcomes:
             self.outcomes.append(o)
+            if o.module not in self.own:  # another shard's module: that shard says it
+                if isinstance(o, MoveCompleted):
+                    self.meter.record_move(o)
+                    self.on_moved(o)
+                continue
             if isinstance(o, MoveStarted):
                 self._publish_started(o)
             elif isinstance(o, MoveCompleted):

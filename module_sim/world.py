@@ -34,7 +34,14 @@ from .physics import MoveCompleted
 
 
 class World:
-    def __init__(self, bus: Bus, scenario: Scenario) -> None:
+    def __init__(self, bus: Bus, scenario: Scenario, *, own: set[str] | None = None,
+                 pc: bool = True, physics: bool = True, slack_ns: int = 0) -> None:
+        """The whole world, or a shard's part of it (:mod:`module_sim.shards`): ``own``
+        names the modules whose receivers, poses, switches and moves it handles (default
+        all), ``pc`` whether it carries light to the PC's receiver. Every part keeps every
+        body's pose (light and moves need the whole lattice); a shard's physics is lagged
+        (:class:`Mechanics`). ``slack_ns``: how late light may reach this part (two lockstep
+        windows): the IR medium keeps bytes that long after they end, for light still to come."""
         self.bus = bus
         self.scenario = scenario
         self.bodies: dict[str, Body] = {}
@@ -42,6 +49,10 @@ class World:
             name = module_endpoint(m.id)
             self.bodies[name] = Body(name, m.id, m.cell, m.orientation, m.kind, m.cell == scenario.fixed)
         self._by_cell: dict[Cell, Body] = {b.cell: b for b in self.bodies.values()}
+        self.own = set(self.bodies) if own is None else set(own)
+        self.pc = pc
+        self._whole = own is None and pc  # the one-process world: no filtering of receivers
+        self.slack_ns = slack_ns
         self.obstacles = set(scenario.obstacles)
         self._rng = random.Random(scenario.seed)
         self.ber = scenario.bit_error_rate
@@ -51,7 +62,8 @@ class World:
         bus.subscribe(bus.keys.world_sync, lambda k, p: self.start())
         bus.subscribe(bus.keys.world_confirm, self._on_confirm)
         self.mechanics = Mechanics(bus, self.bodies, self.obstacles, self._moved,
-                                   faults=list(scenario.faults))
+                                   faults=list(scenario.faults), own=self.own,
+                                   lagged=own is not None) if physics else None
 
     # -- moves ----------------------------------------------------------------------------------
     def _moved(self, move: MoveCompleted) -> None:
@@ -63,7 +75,8 @@ class World:
         del self._by_cell[b.cell]
         b.cell, b.orientation = cell, orientation % 6
         self._by_cell[cell] = b
-        self._publish_pose(b)
+        if b.module in self.own:
+            self._publish_pose(b)
         self.publish_switches()
 
     def _on_confirm(self, key: str, payload: bytes) -> None:
@@ -94,7 +107,8 @@ class World:
         """Publish every pose and optical switch state: at power-up, and again whenever a
         participant that joined late asks on ``world/sync``."""
         for b in self.bodies.values():
-            self._publish_pose(b)
+            if b.module in self.own:
+                self._publish_pose(b)
         self.publish_switches()
 
     def _publish_pose(self, b: Body) -> None:
@@ -112,11 +126,19 @@ class World:
 
     def publish_switches(self) -> None:
         for b in self.bodies.values():
+            if b.module not in self.own:
+                continue
             self.bus.put(self.bus.keys.switches(b.module),
                          Switches(b.module, self.switches(b), self.bus.clock.now_ns()).to_json())
 
     # -- the IR medium -------------------------------------------------------------------------------
     def _receivers(self, src: str, transceiver: int) -> list[tuple[str, int]]:
+        out = self._all_receivers(src, transceiver)
+        if self._whole:
+            return out
+        return [(d, k) for d, k in out if (self.pc if d == PC else d in self.own)]
+
+    def _all_receivers(self, src: str, transceiver: int) -> list[tuple[str, int]]:
         """Who receives light sent on ``transceiver``. A real module's light here is its
         twin's (:mod:`module_sim.twin`): the twin hears what its board hears from the PC and
         from virtual neighbours, and its side light reaches them; only its centre light
@@ -153,7 +175,7 @@ class World:
             return
         src, n, data, starts, byte_ns = d["src"], d["burst"], bytes.fromhex(d["data"]), d["starts"], \
             d["byte_ns"]
-        now = self.bus.clock.now_ns()
+        now = self.bus.clock.now_ns() - self.slack_ns  # the air keeps bytes that light may still meet
         bus = self.bus
         clean_head = None
         for dst, rx in self._receivers(src, d["transceiver"]):
