@@ -20,8 +20,10 @@ parallel discrete-event simulation does:
 * **Liveness.** Every participant holds a zenoh liveliness token. One that vanishes (its
   process killed, its link cut) ends the others at the barrier of the window they are in,
   with :class:`PeerLost` naming it; one that stays silent ends them after ``timeout_s``.
-* All participants stop at the same boundary: the first window after which one of them
-  asked to stop (``run(until=...)``).
+* The clock does it all: :meth:`LockstepClock.run` crosses a window's end only through the
+  barrier, so code that drives a clock (the planner's ``clock.run(until=...)``) runs
+  unchanged. All participants stop at the same boundary: the end of the window in which
+  one of them called :meth:`Lockstep.finish`.
 
 The cost per window is one small sample from each participant to each other and a wait for
 the slowest: with ``W`` = 30 ms and a fleet running near real time that is ~33 barriers per

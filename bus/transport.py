@@ -74,6 +74,7 @@ class _Hub:
         self.remote: dict[str, Any] = {}  # zenoh subscribers for samples from elsewhere
         self.flush_answer: Any = None  # the queryable of :meth:`flush`, with the first of them
         self.sent = False  # whether anything was put on zenoh through this session
+        self.attachment: bytes | None = None  # Bus.sender
         self.control: list[tuple[str, Callable[[str, str, bytes], None]]] = []  # see Bus.on_control
         self.users = 0
 
@@ -206,18 +207,18 @@ class Bus:
         self._seq: dict[str, int] = {}
         self.published = 0
         self.closed = False
-        self._attachment: bytes | None = None
         atexit.register(self.close)
 
     @property
     def sender(self) -> str | None:
-        """The name this bus's samples carry to other processes (a zenoh attachment), for
-        receivers that order them by sender (:mod:`bus.lockstep`); None: no name."""
-        return None if self._attachment is None else self._attachment.decode()
+        """The name the samples of this process's session carry to other processes (a zenoh
+        attachment), for receivers that order them by sender (:mod:`bus.lockstep`); None:
+        no name. Shared by every bus on the session."""
+        return None if self._hub.attachment is None else self._hub.attachment.decode()
 
     @sender.setter
     def sender(self, name: str | None) -> None:
-        self._attachment = None if name is None else name.encode()
+        self._hub.attachment = None if name is None else name.encode()
 
     # -- publishing ----------------------------------------------------------------------
     def put(self, key: str, payload: bytes) -> None:
@@ -237,11 +238,12 @@ class Bus:
         alone, for control traffic this process's subscribers have no use for: the lockstep
         words)."""
         pub = self._publishers.get(key) or self._publisher(key)
-        if self._attachment is None:
+        hub = self._hub
+        if hub.attachment is None:
             pub.put(payload)
         else:
-            pub.put(payload, attachment=self._attachment)
-        self._hub.sent = True
+            pub.put(payload, attachment=hub.attachment)
+        hub.sent = True
 
     def _publisher(self, key: str) -> Any:
         pub = self._publishers.get(key)

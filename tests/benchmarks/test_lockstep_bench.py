@@ -8,9 +8,11 @@ import os
 import subprocess
 import sys
 
+from tests.support.processes import free_port
+
 
 def _pair(tmp_path, *extra: str) -> float:
-    port = 21500 + os.getpid() % 400
+    port = free_port()
     fleet = f"lockbench{os.getpid()}{len(extra)}"
     cmd = [sys.executable, "-m", "tests.support.lockstep_toy"]
     a = subprocess.Popen([*cmd, "a", "--fleet", fleet, "--out", str(tmp_path / "a.json"), "--listen",

@@ -1,0 +1,104 @@
+"""A fleet over processes (hexbench run --shards N): shards on one lockstep clock give the
+one-process run's frames; through a zenoh router too; a killed shard ends the run at that
+window, named, and the recording keeps what came before."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from hexbench.cli import main
+from recordings.reader import read_frames
+from tests.support.processes import free_port
+
+
+def _frames(path) -> list[tuple]:
+    return sorted((e.sim_time_ns, e.link, e.src, e.dst, e.raw, e.kind) for e in read_frames(path))
+
+
+@pytest.fixture(scope="module")
+def one_process(tmp_path_factory):
+    """thesis-12 with the complete planner in one process: the reference frames."""
+    path = tmp_path_factory.mktemp("one") / "one.mcap"
+    assert main(["run", "thesis-12", "--planner", "complete", "--clock", "virtual", "--isolated",
+                 "--record", str(path)]) == 0
+    return _frames(path)
+
+
+def _run(*extra: str, out) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "hexbench", "run", "thesis-12", "--planner", "complete",
+                           "--clock", "virtual", "--record", str(out), *extra],
+                          capture_output=True, text=True, timeout=600)
+
+
+def test_two_shards_give_the_one_process_frames(tmp_path, one_process):
+    out = tmp_path / "sharded.mcap"
+    r = _run("--shards", "2", "--fleet", f"shard2{os.getpid()}", out=out)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    assert "complete: goal reached" in r.stdout
+    assert "lockstep window 30 ms" in r.stdout
+    got = _frames(out)
+    assert len(got) == len(one_process) > 2000
+    assert got == one_process
+
+
+def test_shards_through_a_zenoh_router(tmp_path, one_process):
+    port = free_port()
+    router = subprocess.Popen([sys.executable, "-m", "hexbench", "router", "--listen",
+                               f"tcp/127.0.0.1:{port}"], stdout=subprocess.PIPE, text=True)
+    try:
+        assert router.stdout.readline().startswith("router ")
+        out = tmp_path / "routed.mcap"
+        r = _run("--shards", "3", "--mode", "client", "--connect", f"tcp/127.0.0.1:{port}",
+                 "--fleet", f"routed{os.getpid()}", out=out)
+    finally:
+        router.terminate()
+        router.wait(timeout=30)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    assert _frames(out) == one_process
+
+
+def test_a_killed_shard_ends_the_run_at_that_window_and_the_recording_keeps_the_rest(tmp_path, one_process):
+    out = tmp_path / "killed.mcap"
+    run = subprocess.Popen([sys.executable, "-m", "hexbench", "run", "thesis-12", "--planner", "complete",
+                            "--clock", "virtual", "--shards", "2", "--fleet", f"kill{os.getpid()}",
+                            "--record", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                           text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    pids = None
+    for line in run.stdout:
+        m = re.search(r"shards: 2 processes \((\d+), (\d+)\)", line)
+        if m:
+            pids = int(m.group(1)), int(m.group(2))
+        if pids and "moves" in line and "1/" in line:  # the first move is done: well under way
+            break
+    assert pids, "the run did not say which processes its shards are"
+    os.kill(pids[1], signal.SIGKILL)
+    killed = time.monotonic()
+    stdout, stderr = run.communicate(timeout=120)
+    ended = time.monotonic() - killed
+    assert run.returncode == 1
+    m = re.search(r"hexbench run: error: lockstep: s1 left the run in window (\d+) \(sim [\d.]+-[\d.]+ s\)",
+                  stderr)
+    assert m, stderr
+    assert "Traceback" not in stderr
+    assert ended < 15  # at the barrier it was waiting at (plus the grace for a last word)
+    # a complete file (the recorder closed it) with every frame of the windows before
+    window_start = int(m.group(1)) * 30_000_000
+    kept = [f for f in _frames(out) if f[0] < window_start]
+    assert len(kept) > 100
+    assert kept == [f for f in one_process if f[0] < window_start]
+    deadline = time.monotonic() + 30  # the other shard does not outlive the run
+    while time.monotonic() < deadline:
+        try:
+            os.kill(pids[0], 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.1)
+    else:
+        pytest.fail(f"shard 0 (pid {pids[0]}) still runs after the run ended")
