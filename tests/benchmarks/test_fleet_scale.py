@@ -90,6 +90,96 @@ def test_fleet_scale(n, record, program, tmp_path):
         gc.unfreeze()
 
 
+SHARDS = int(os.environ.get("HEXBENCH_SCALE_SHARDS", "2"))
+SHARDED_TARGET = 1.6  # x the one-process real-time factor, recording on
+
+
+def test_sharded_fleet_scale(tmp_path):
+    """The largest fleet over SHARDS processes on one lockstep clock (issue: shards): the
+    shards run the modules and their parts of the worlds; this process runs the PCs, the
+    PCs' receivers and the recorders, as ``hexbench run --shards`` does. Boot and busy as
+    above, recording on, against the one-process run (measured here if not above)."""
+    import subprocess
+    import sys
+
+    from bus.lockstep import Lockstep, LockstepClock
+    from bus.session import SessionOptions, open_session
+    from bus.transport import Bus
+    from module_sim.shards import participants, window_ns
+    from module_sim.world import World
+    from planner_svc.endpoint import PcEndpoint
+    from tests.support.block_fleets import block_scenarios, fleet_names
+    from tests.support.processes import free_port
+
+    n = max(SIZES)
+    if (n, True, "model") not in RESULTS:
+        test_fleet_scale(n, True, "model", tmp_path / "one")
+    one = RESULTS[(n, True, "model")]
+    port = free_port()
+    clock = LockstepClock()
+    session = open_session(SessionOptions(listen=[f"tcp/127.0.0.1:{port}"]))
+    scenarios = block_scenarios(n)
+    buses = [Bus(clock, name, session=session) for name in fleet_names(n, "sh")]
+    w = window_ns(scenarios[0].ir_baud)
+    recorders = []
+    procs: list[subprocess.Popen] = []
+    try:
+        for bus in buses:
+            rec = Recorder(tmp_path / f"{bus.keys.fleet}.mcap", fleet=bus.keys.fleet)
+            rec.attach(bus)
+            recorders.append(rec)
+        for bus, sc in zip(buses, scenarios):
+            World(bus, sc, own=set(), pc=True, physics=False, slack_ns=2 * w)
+        pcs = [PcEndpoint(bus) for bus in buses]
+        step = Lockstep(buses[0], "pc", participants(SHARDS), w, timeout_s=300)
+        procs = [subprocess.Popen([sys.executable, "-m", "tests.support.block_fleets", str(n), "sh",
+                                   f"{k}/{SHARDS}", "--connect", f"tcp/127.0.0.1:{port}"],
+                                  stdout=subprocess.PIPE, text=True) for k in range(SHARDS)]
+        for p in procs:
+            assert p.stdout.readline().strip() == "ready"
+        step.wait_for_peers()
+        t = time.perf_counter()
+        clock.run(until_ns=9 * NS_PER_S)
+        boot_wall = time.perf_counter() - t
+
+        def command(k: int) -> None:
+            for pc in pcs:
+                pc.send("SxP" if k % 2 == 0 else "SxOff", 1 + k % 6)
+            clock.run(until_ns=clock.now_ns() + 1_500_000_000)
+
+        command(1)
+        start_ns = clock.now_ns()
+        t = time.perf_counter()
+        for k in range(10):
+            command(k)
+        busy_wall = time.perf_counter() - t
+        busy_sim = (clock.now_ns() - start_ns) / NS_PER_S
+        step.finish()
+        outs = [p.communicate(timeout=300)[0] for p in procs]
+        assert all(p.returncode == 0 for p in procs), outs
+        published = sum(b.published for b in buses) + sum(
+            int(line.split()[1]) for out in outs for line in out.splitlines() if line.startswith("published "))
+        recorded = sum(r.close().messages for r in recorders)
+        recorders.clear()
+        boot_x, busy_x = 9.0 / boot_wall, busy_sim / busy_wall
+        ok = boot_x >= SHARDED_TARGET * one["boot_x"] and busy_x >= SHARDED_TARGET * one["busy_x"]
+        print(f"\n[fleet scale] model n={n} over {SHARDS} shard processes, recording on: boot {boot_x:.2f}x "
+              f"real time ({boot_x / one['boot_x']:.2f}x one process's {one['boot_x']:.2f}x), busy {busy_x:.2f}x "
+              f"({busy_x / one['busy_x']:.2f}x one process's {one['busy_x']:.2f}x); {step.window} windows; "
+              f"{published - recorded} of {published} samples lost; target >= {SHARDED_TARGET}x one process: "
+              f"{'met' if ok else 'MISSED'}")
+        assert recorded == published  # 0 lost
+    finally:
+        for rec in recorders:
+            rec.close()
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+        for bus in buses:
+            bus.close()
+        session.close()
+
+
 def test_summary():
     """The targets at the largest size, with recording on; the firmware beside the model."""
     big, small = max(SIZES), min(SIZES)

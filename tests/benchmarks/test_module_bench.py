@@ -16,22 +16,20 @@ on one clock and one zenoh session, in one process — e.g. 1000 modules as 4 fl
 """
 
 import gc
-import math
 import os
 import time
 
 import pytest
 
 from bus.clock import VirtualClock
-from bus.scenario import loads
 from bus.session import SessionOptions, open_session
 from bus.timing import NS_PER_S
 from bus.transport import Bus
 from module_sim.fleet import Fleet
 from planner_svc.endpoint import PcEndpoint
+from tests.support.block_fleets import block_scenarios, fleet_names
 
 SIZES = [int(s) for s in os.environ.get("HEXBENCH_BENCH_SIZES", "1,100,1000").split(",")]
-MAX_IDS = 255  # hardware ids 1..255 (the DIP switches)
 
 
 def _fleets(n: int, tag: str, program: str = "model"):
@@ -39,15 +37,10 @@ def _fleets(n: int, tag: str, program: str = "model"):
     ``program``: the Python programs ("model") or the C firmware ("firmware")."""
     clock = VirtualClock()
     session = open_session(SessionOptions(isolated=True))
-    k = math.ceil(n / MAX_IDS)
-    sizes = [n // k + (1 if i < n % k else 0) for i in range(k)]
     buses, fleets, pcs = [], [], []
-    for i, size in enumerate(sizes):
-        bus = Bus(clock, f"bench{tag}{n}x{i}", session=session)
-        side = int(size ** 0.5) + 1
-        cells = "\n".join(f"[[modules]]\ncell = [{j % side}, {j // side}]\nid = {j + 1}"
-                          for j in range(size))
-        fleets.append(Fleet(bus, loads(f'profile = "v2"\nprogram = "{program}"\nfixed = [0, 0]\n{cells}\n')))
+    for name, sc in zip(fleet_names(n, tag), block_scenarios(n, program)):
+        bus = Bus(clock, name, session=session)
+        fleets.append(Fleet(bus, sc))
         buses.append(bus)
         pcs.append(PcEndpoint(bus))
     return clock, session, buses, fleets, pcs
