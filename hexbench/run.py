@@ -194,7 +194,6 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
         check_shardable(scenario, shards)
         if not (args.connect or args.listen):  # the shards join this process on loopback
             args.listen = [f"tcp/127.0.0.1:{_free_port()}"]
-    if shards is not None:
         from bus.lockstep import LockstepClock
         bus = open_bus(args, LockstepClock())
     else:

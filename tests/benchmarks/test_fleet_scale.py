@@ -29,6 +29,13 @@ BOOT_TARGET, BUSY_TARGET, COST_RATIO_TARGET = 3.0, 5.0, 1.3
 RESULTS: dict[tuple[int, bool, str], dict[str, float]] = {}
 
 
+def _command(clock, pcs, k: int) -> None:
+    """One busy round: every fleet's PC commands all its modules, then 1.5 s of sim time."""
+    for pc in pcs:
+        pc.send("SxP" if k % 2 == 0 else "SxOff", 1 + k % 6)
+    clock.run(until_ns=clock.now_ns() + 1_500_000_000)
+
+
 def _threads() -> int:
     return len(os.listdir("/proc/self/task"))
 
@@ -52,17 +59,12 @@ def test_fleet_scale(n, record, program, tmp_path):
         boot_wall = time.perf_counter() - t
         boot_samples = sum(b.published for b in buses)
 
-        def command(k: int) -> None:
-            for pc in pcs:
-                pc.send("SxP" if k % 2 == 0 else "SxOff", 1 + k % 6)
-            clock.run(until_ns=clock.now_ns() + 1_500_000_000)
-
-        command(1)  # warm-up: first use of each key declares its publisher
+        _command(clock, pcs, 1)  # warm-up: first use of each key declares its publisher
         start_ns, before = clock.now_ns(), sum(b.published for b in buses)
         t = time.perf_counter()
         rounds = 10
         for k in range(rounds):
-            command(k)
+            _command(clock, pcs, k)
         busy_wall = time.perf_counter() - t
         busy_samples = sum(b.published for b in buses) - before
         busy_sim = (clock.now_ns() - start_ns) / NS_PER_S
@@ -142,16 +144,11 @@ def test_sharded_fleet_scale(tmp_path):
         clock.run(until_ns=9 * NS_PER_S)
         boot_wall = time.perf_counter() - t
 
-        def command(k: int) -> None:
-            for pc in pcs:
-                pc.send("SxP" if k % 2 == 0 else "SxOff", 1 + k % 6)
-            clock.run(until_ns=clock.now_ns() + 1_500_000_000)
-
-        command(1)
+        _command(clock, pcs, 1)
         start_ns = clock.now_ns()
         t = time.perf_counter()
         for k in range(10):
-            command(k)
+            _command(clock, pcs, k)
         busy_wall = time.perf_counter() - t
         busy_sim = (clock.now_ns() - start_ns) / NS_PER_S
         step.finish()
