@@ -18,7 +18,7 @@ import sys
 import threading
 from pathlib import Path
 
-from . import codec, pins, rotations, timing
+from . import chip, codec, pins, rotations, timing
 from .functions import ACK_TIMEOUT, ACK_UNKNOWN, ARG_UNUSED, BY_NAME, FUNCTIONS, Board
 from .lattice import NEIGHBOUR_OFFSET, Cell, Direction, Joint, Side, move_rule
 
@@ -128,6 +128,8 @@ def header() -> str:
         f"#define HANDSHAKE_RETRY_TICKS {timing.HANDSHAKE_RETRY_TICKS}",
         f"#define LOCALIZE_LISTEN_TICKS {timing.LOCALIZE_LISTEN_TICKS}",
         f"#define LOCALIZE_SLOT_TICKS {timing.localize_slot_ticks(timing.Baud.IR)}",
+        f"#define COIL_ON_LIMIT_TICKS {timing.COIL_ON_LIMIT_TICKS}",
+        f"#define SELFTEST_PULSE_TICKS {timing.SELFTEST_PULSE_TICKS}",
         f"#define UART0_UBRR {ubrr(timing.Baud.UART0)}",
         f"#define DEBUG_UBRR {ubrr(timing.Baud.DEBUG)}",
         f"#define IR_UBRR {ubrr(timing.Baud.IR)}",
@@ -159,6 +161,11 @@ def header() -> str:
     out += _pin_table("LED_JOINT", pins.LED_JOINT)
     out += _pin_table("OPTICAL_SWITCH", pins.OPTICAL_SWITCH)
     out.append(f"#define DIP_PORT {pins.PORTS.index(pins.DIP_PORT)}")
+    out.append("/* 1: a switch that is ON (a DIP switch, a neighbour's optical switch) reads 0 */")
+    out.append(f"#define DIP_ACTIVE_LOW {int(pins.DIP_ACTIVE_LOW)}")
+    out.append(f"#define OPTICAL_SWITCH_ACTIVE_LOW {int(pins.OPTICAL_SWITCH_ACTIVE_LOW)}")
+    out += _port_masks("CONTROL_PULLUPS", list(pins.CONTROL_PULLUPS))
+    out += _port_masks("COMM_PULLUPS", list(pins.COMM_PULLUPS))
     out += _port_masks("CONTROL_UART_PINS", list(pins.CONTROL_UART_PINS))
     out += _port_masks("CONTROL_OUTPUTS", [*pins.JOINT.values(), *pins.MAGNET_POS.values(),
                                            *pins.MAGNET_NEG.values()])
@@ -182,6 +189,11 @@ def header() -> str:
         out.append(f"#define TXT_{name.upper()} {_c_string(text + codec.EOL)}")
     out += [f"#define TXT_ACK {_c_string(b'ACK')}", f"#define TXT_MSG {_c_string(b'MSG')}",
             f"#define TXT_POS {_c_string(codec.POS_TAG)}", f"#define TXT_ACT {_c_string(codec.ACT_TAG)}",
+            f"#define TXT_LIM {_c_string(codec.LIM_TAG)}", f"#define TXT_TST {_c_string(codec.TST_TAG)}",
+            f"#define TXT_VER {_c_string(codec.VER_TAG)}",
+            f"#define FIRMWARE_VERSION_MAJOR {codec.FIRMWARE_VERSION[0]}",
+            f"#define FIRMWARE_VERSION_MINOR {codec.FIRMWARE_VERSION[1]}",
+            f"#define PROFILE_V2_BYTE {codec.PROFILE_V2}",
             f"#define TXT_SIDE {_c_string(codec.encode_side_report(0)[:-3])}",
             f"#define TXT_YREF {_c_string(codec.encode_yref_report(0)[:-3])}",
             f"#define BYTE_START 0x{codec.START[0]:02x}", f"#define BYTE_END 0x{codec.END[0]:02x}",
@@ -191,6 +203,16 @@ def header() -> str:
             f"#define COORD_OFFSET {codec.COORD_OFFSET}",
             f"#define PC_FRAME_LEN {codec.PC_FRAME_LEN}", f"#define RELAY_FRAME_LEN {codec.RELAY_FRAME_LEN}",
             f"#define MSG1_LEN {codec.MSG1_LEN}",
+            "/* what an image on the wrong board, or a board of unknown kind, prints (bus/chip.py) */"]
+    for (image, found), text in codec.GUARD_TEXTS.items():
+        out.append(f"#define TXT_GUARD_{image.upper()}_ON_{found.upper()} "
+                   f"{_c_string(codec.PREAMBLE + text + codec.EOL)}")
+    out += ["", "/* --- the EEPROM board-kind record (bus/chip.py) --- */",
+            f"#define BOARD_RECORD_ADDR {chip.BOARD_RECORD_ADDR}",
+            f"#define BOARD_RECORD_MAGIC0 0x{chip.BOARD_RECORD_MAGIC[0]:02x}",
+            f"#define BOARD_RECORD_MAGIC1 0x{chip.BOARD_RECORD_MAGIC[1]:02x}",
+            f"#define BOARD_KIND_CONTROL {int(chip.BoardKind.CONTROL)}",
+            f"#define BOARD_KIND_COMM {int(chip.BoardKind.COMM)}",
             "", "/* --- rotations (bus/rotations.py): pairs (op, arg), op 1 open, 2 pos, 3 neg,",
             " * 4 close_all, 5 off_all, 6 wait (arg 1..3 = t1..t3); others act on i + arg. --- */"]
     for name in ("MCW", "MCCW", "SCW", "SCCW"):

@@ -40,6 +40,24 @@ MSG1_LEN = 8
 POS_TAG = b"POS"
 #: v2 actuator report on the debug UART: "ACT" joints magnets+ magnets- (bit k-1 = J k / S k).
 ACT_TAG = b"ACT"
+#: Coils the on-time limit switched off (debug UART, both profiles), bits as in ACT.
+LIM_TAG = b"LIM"
+#: v2 SelfTest summary on the debug UART: "TST" id switches (bit k-1 = a neighbour on side k).
+TST_TAG = b"TST"
+#: v2 version report on the centre channel: "VER" major minor profile.
+VER_TAG = b"VER"
+#: What our programs report to ``Version``: the protocol release (docs/protocol.md) and the
+#: profile byte (2 = v2; a thesis-2009 module does not know the code and answers 'N').
+FIRMWARE_VERSION = (2, 1)
+PROFILE_V2 = 2
+#: What an image prints on its UART1, about once a second, when the EEPROM's board-kind record
+#: (bus.chip) does not name the board it was built for: it drives no pin then.
+GUARD_TEXTS: dict[tuple[str, str], bytes] = {
+    ("comm", "control"): b"WRONG BOARD: COMM IMAGE, EEPROM SAYS CONTROL",
+    ("control", "comm"): b"WRONG BOARD: CONTROL IMAGE, EEPROM SAYS COMM",
+    ("comm", "none"): b"UNKNOWN BOARD: COMM IMAGE, NO BOARD RECORD IN EEPROM",
+    ("control", "none"): b"UNKNOWN BOARD: CONTROL IMAGE, NO BOARD RECORD IN EEPROM",
+}
 COORD_OFFSET = 128
 
 
@@ -66,6 +84,10 @@ class Kind(str, Enum):
     SIDE_REPORT = "side-report"
     YREF_REPORT = "yref-report"
     POSITION = "position"
+    VERSION = "version"
+    COIL_LIMIT = "coil-limit"
+    SELF_TEST = "self-test"
+    BOARD_GUARD = "board-guard"
     MSG1 = "msg1"
     PROBE = "probe"
     NOISE = "noise"
@@ -108,6 +130,8 @@ def _grammar(link: Link) -> tuple[Template, ...]:
                 t.append(Template(Kind.BANNER, p + text + EOL, label=name))
             t.append(Template(Kind.ACK, p + b"ACK", 1, EOL))
             t.append(Template(Kind.POSITION, p + POS_TAG, 5, EOL))
+            t.append(Template(Kind.VERSION, p + VER_TAG, 3, EOL))
+        t.extend(_guard_templates())
         t.append(Template(Kind.SIDE_REPORT, b"Side: ", 1, EOL))
         t.append(Template(Kind.YREF_REPORT, b"Yref: ", 1, EOL))
     elif link is Link.SIDE:
@@ -121,7 +145,15 @@ def _grammar(link: Link) -> tuple[Template, ...]:
             t.append(Template(Kind.ACK, p + b"ACK", 1, EOL))
         t.append(Template(Kind.DEBUG_MSG, b"MSG", 5, EOL))
         t.append(Template(Kind.ACTUATORS, ACT_TAG, 3, EOL))
+        t.append(Template(Kind.COIL_LIMIT, LIM_TAG, 3, EOL))
+        t.append(Template(Kind.SELF_TEST, TST_TAG, 2, EOL))
+        t.extend(_guard_templates())
     return tuple(t)
+
+
+def _guard_templates() -> list[Template]:
+    return [Template(Kind.BOARD_GUARD, PREAMBLE + text + EOL, label=f"{image}-on-{found}")
+            for (image, found), text in GUARD_TEXTS.items()]
 
 
 GRAMMARS: dict[Link, tuple[Template, ...]] = {link: _grammar(link) for link in Link}
@@ -192,6 +224,9 @@ def _view(link: Link, tpl: Template, raw: bytes) -> dict[str, Any]:
     if k is Kind.PROBE:
         return {"byte": raw[0]}
     view, i = _prefix_view(raw)
+    if k is Kind.BOARD_GUARD:
+        image, found = tpl.label.split("-on-")
+        return {"image": image, "eeprom": found, "text": raw[len(PREAMBLE):-len(EOL)].decode("ascii")}
     if k is Kind.BANNER:
         view["banner"] = tpl.label
         view["text"] = raw[i:-len(EOL)].decode("ascii")
@@ -202,8 +237,13 @@ def _view(link: Link, tpl: Template, raw: bytes) -> dict[str, Any]:
     elif k is Kind.DEBUG_MSG:
         body = raw[3:8]
         view.update(_args_view(FUNCTIONS[body[0]], body[1:], filler=ARG_UNUSED))
-    elif k is Kind.ACTUATORS:
+    elif k in (Kind.ACTUATORS, Kind.COIL_LIMIT):
         view.update(actuator_report_view(raw[3:6]))
+    elif k is Kind.SELF_TEST:
+        view.update(id=raw[3], switches=[bool(raw[4] >> s & 1) for s in range(6)])
+    elif k is Kind.VERSION:
+        major, minor, prof = raw[i + 3:i + 6]
+        view.update(version=f"{major}.{minor}", profile="v2" if prof == PROFILE_V2 else f"unknown ({prof})")
     elif k in (Kind.SIDE_REPORT, Kind.YREF_REPORT):
         b = raw[6]
         view["byte"] = b
@@ -367,6 +407,22 @@ def encode_actuator_report(joints_open: Iterable[bool], magnets: Iterable[int]) 
     m = list(magnets)
     return (ACT_TAG + bytes([_mask(joints_open), _mask(v in (1, 2) for v in m),
                              _mask(v in (-1, 2) for v in m)]) + EOL)
+
+
+def encode_coil_limit(joints: int, pos: int, neg: int) -> bytes:
+    """Control board's debug ``LIM`` line: the coils the on-time limit just switched off."""
+    return LIM_TAG + bytes([joints, pos, neg]) + EOL
+
+
+def encode_self_test(ident: int, switches: int) -> bytes:
+    """v2 control board's debug ``TST`` line: the DIP id it reads and the optical switches the
+    comm board passed on (bit k-1 = a neighbour on side k)."""
+    return TST_TAG + bytes([ident & 0xFF, switches & 0x3F]) + EOL
+
+
+def encode_version(*, role: bytes = b"") -> bytes:
+    """v2 comm board's answer to ``Version``: preamble, role, ``"VER"`` major minor profile."""
+    return PREAMBLE + role + VER_TAG + bytes([*FIRMWARE_VERSION, PROFILE_V2]) + EOL
 
 
 def actuator_report_view(body: bytes) -> dict[str, Any]:

@@ -151,6 +151,11 @@ _DEFINED: tuple[Function, ...] = (
                       Arg("mi", 1, 6, True), Arg("sid", doc="substrate's id"),
                       Arg("si", 1, 6, True), Arg("t1"), Arg("t2"), Arg("t3")),
          "addressed rotation: the two named modules act at once", profile="v2", ack=Ack.ECHO),
+    _com(63, "Version", (), "report the firmware's version and profile on the centre channel",
+         profile="v2"),
+    Function(64, "SelfTest", Board.CONTROL, (), (), Ack.ECHO, profile="v2",
+             doc="each actuator in turn, briefly; the DIP id and the optical switches on the "
+                 "debug UART"),
     Function(126, "Timeout", Board.RESERVED, doc="'~': a receive timed out"),
 )
 

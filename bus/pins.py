@@ -42,8 +42,11 @@ JOINT = _pins("PA2", "PA3", "PA5", "PA4", "PA0", "PA1")
 MAGNET_POS = _pins("PB0", "PD3", "PB6", "PD4", "PB1", "PB7")
 #: Negative relay of the side magnet S1..S6.
 MAGNET_NEG = _pins("PD6", "PD5", "PD7", "PB4", "PB5", "PD2")
-#: DIP switches (inputs): the module's hardware id in protocol v2.
+#: DIP switches (inputs): the module's hardware id in protocol v2. Each switch closes its pin
+#: to ground when ON, against the internal pull-up, so the id is the complement of PINC (bit k
+#: of the id = switch k+1 ON); all switches open reads 0, which is no id.
 DIP_PORT = "C"
+DIP_ACTIVE_LOW = True
 #: Pins SxOffAll leaves alone: the two UARTs' RX/TX.
 CONTROL_UART_PINS = (Pin.parse("PB2"), Pin.parse("PB3"), Pin.parse("PD0"), Pin.parse("PD1"))
 
@@ -56,10 +59,46 @@ LED_JOINT = _pins("PD7", "PA7", "PE2", "PC5", "PC2", "PD4")
 IR_SEL_A, IR_SEL_B, IR_SEL_C = Pin.parse("PA2"), Pin.parse("PA1"), Pin.parse("PA0")
 IR_SEL_MASK = IR_SEL_A.mask | IR_SEL_B.mask | IR_SEL_C.mask
 
-#: Optical switches (inputs, active high): a neighbour touches body side 1..6. The thesis
-#: names no pins for them (§4.3.4 only says they exist); these are free pins of the comm
-#: board, our choice for the v2 firmware (docs/firmware.md).
-OPTICAL_SWITCH = _pins("PB0", "PB1", "PB4", "PB5", "PB6", "PB7")
+#: Optical switches (inputs, active low against the internal pull-up: a neighbour on body
+#: side 1..6 pulls its pin to ground; an unwired input reads "no neighbour"). The thesis names
+#: no pins for them (§4.3.4 only says they exist); these are free pins of the comm board, our
+#: choice for the v2 firmware, clear of the ISP lines MOSI/MISO/SCK (PB5..PB7) so a switch
+#: never fights the programmer (docs/firmware.md, "Pins we chose").
+OPTICAL_SWITCH = _pins("PB0", "PB1", "PB4", "PA3", "PA4", "PD2")
+OPTICAL_SWITCH_ACTIVE_LOW = True
+
+def dip_levels(ident: int) -> int:
+    """PINC as the control board reads it when its DIP switches are set to ``ident``."""
+    return (~ident if DIP_ACTIVE_LOW else ident) & 0xFF
+
+
+def dip_id(levels: int) -> int:
+    """The id the DIP switches give for the levels ``levels`` on their port."""
+    return dip_levels(levels)  # the complement is its own inverse
+
+
+def switch_levels(present: list[bool]) -> dict[str, int]:
+    """Levels on the optical-switch pins, per port, for neighbours ``present`` on sides
+    1..6 (only the switch pins' bits are meaningful)."""
+    levels: dict[str, int] = {}
+    for side, pin in OPTICAL_SWITCH.items():
+        high = not present[side - 1] if OPTICAL_SWITCH_ACTIVE_LOW else present[side - 1]
+        levels[pin.port] = levels.get(pin.port, 0) | (pin.mask if high else 0)
+    return levels
+
+
+#: Inputs each image pulls up (PORTx bits of input pins): the control board's DIP switches,
+#: the comm board's optical switches. Everything else that is not an output stays floating.
+CONTROL_PULLUPS = tuple(Pin(DIP_PORT, b) for b in range(8))
+COMM_PULLUPS = tuple(OPTICAL_SWITCH.values())
+
+
+def port_masks(pin_list: tuple[Pin, ...] | list[Pin]) -> dict[str, int]:
+    """The bits of ``pin_list`` per port, every port named (0 where none)."""
+    masks = dict.fromkeys(PORTS, 0)
+    for p in pin_list:
+        masks[p.port] |= p.mask
+    return masks
 
 #: Transceiver number (0 = centre, 1..6 = body side) on each CD4051 channel Y0..Y6.
 IR_CHANNEL_TRANSCEIVER = (1, 6, 0, 2, 5, 3, 4)

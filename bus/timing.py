@@ -36,6 +36,15 @@ HANDSHAKE_RETRY_TICKS = 10
 #: A listener waits this long per side for the '*' of MSG1 (Appendix A `Localize`).
 LOCALIZE_LISTEN_TICKS = 150
 
+#: The longest a solenoid or magnet may stay energised without a pause (ours, both profiles):
+#: past it the control board switches the coil off and reports it (``LIM``, docs/protocol.md).
+#: Longer than any single command holds a coil (a rotation with t1 = t2 = t3 = 255 holds its
+#: joints 7.65 s), so no command of the protocol meets it; a coil forgotten on is caught in 8 s.
+COIL_ON_LIMIT_TICKS = 801
+
+#: SelfTest (ours): each actuator on this long, then off as long, one after another.
+SELFTEST_PULSE_TICKS = 10
+
 
 class Baud(int, Enum):
     """Baud rates of the three kinds of link (spec §3, table of links)."""

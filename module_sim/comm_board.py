@@ -14,7 +14,8 @@ from bus.rotations import orientation_after
 from bus.clock import Clock
 from bus.functions import ACK_UNKNOWN, FUNCTIONS, Board, FunctionCode as F
 from bus.lattice import Cell, Direction, Joint, Side, body_to_global, move_rule
-from bus.pins import IR_SEL_A, IR_SEL_MASK, LED_JOINT, LED_NEG, LED_POS, Pin, fold, ir_select_bits, ir_selected
+from bus.pins import (COMM_PULLUPS, IR_SEL_A, IR_SEL_MASK, LED_JOINT, LED_NEG, LED_POS, Pin, fold,
+                      ir_select_bits, ir_selected, port_masks)
 from bus.timing import (ECHO_TIMEOUT_TICKS, HANDSHAKE_RETRY_TICKS, LOCALIZE_LISTEN_TICKS,
                         SUBSTRATE_ACK_DELAY_TICKS, Baud,
                         localize_slot_ticks)
@@ -28,11 +29,8 @@ _ZERO_ARG = {F.JxOpenAll, F.JxCloseAll}
 
 
 def _port_masks(table: dict[int, Pin]) -> dict[str, int]:
-    """The bits of a pin table, per port, in port order."""
-    masks: dict[str, int] = {}
-    for pin in table.values():
-        masks[pin.port] = masks.get(pin.port, 0) | pin.mask
-    return dict(sorted(masks.items()))
+    """The bits of a pin table, per port that has any, in port order."""
+    return {port: mask for port, mask in port_masks(list(table.values())).items() if mask}
 
 
 class CommBoard(Mcu):
@@ -48,6 +46,7 @@ class CommBoard(Mcu):
         self.uart0 = Uart(self, "uart0", Baud.UART0)
         self.uart1 = Uart(self, "uart1", ir_baud)
         self.neighbours = neighbours or (lambda: [False] * 6)
+        self.port.update(port_masks(COMM_PULLUPS))  # board_init's pull-ups, at power-up
         # firmware globals
         self.M, self.S, self.L = 1, 0, 0
         self.X = self.Y = 0

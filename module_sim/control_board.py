@@ -11,7 +11,8 @@ from collections import deque
 from bus import codec, rotations
 from bus.clock import Clock
 from bus.functions import FUNCTIONS, Board
-from bus.pins import CONTROL_UART_PINS, DIP_PORT, JOINT, MAGNET_NEG, MAGNET_POS, Pin, fold
+from bus.pins import (CONTROL_PULLUPS, CONTROL_UART_PINS, DIP_PORT, JOINT, MAGNET_NEG, MAGNET_POS, Pin,
+                      dip_id, dip_levels, fold, port_masks)
 from bus.timing import BOOT_SETTLE_TICKS, HANDSHAKE_RETRY_TICKS, Baud
 
 from .avr import Delay, Mcu, Program, Rx, Tx, Uart
@@ -40,7 +41,8 @@ class ControlBoard(Mcu):
     def __init__(self, clock: Clock, name: str, profile: Profile, dip: int = 0) -> None:
         super().__init__(clock, name)
         self.profile = profile
-        self.pin_in[DIP_PORT] = dip & 0xFF
+        self.port.update(port_masks(CONTROL_PULLUPS))  # board_init's pull-ups, at power-up
+        self.pin_in[DIP_PORT] = dip_levels(dip & 0xFF)
         self.uart0 = Uart(self, "uart0", Baud.UART0)
         self.uart1 = Uart(self, "uart1", Baud.DEBUG)
         #: the last codes run (bounded: a long run's memory stays flat) and how many in all
@@ -178,7 +180,7 @@ class ControlBoard(Mcu):
         yield Tx(u0, b"L")
         if self.profile.addressing:
             # v2: the DIP switches are the module's id; the comm board needs it for Select.
-            yield Tx(u0, bytes([self.pin_in[DIP_PORT]]))
+            yield Tx(u0, bytes([dip_id(self.pin_in[DIP_PORT])]))
         yield Tx(u1, codec.BANNERS["CTR_LST"] + codec.EOL)
         self._reporting = self.profile.actuator_report
         while True:

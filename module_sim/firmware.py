@@ -21,7 +21,7 @@ import struct
 from typing import Callable
 
 from bus.cheader import FirmwareError, build_path, ensure_built
-from bus.pins import OPTICAL_SWITCH, PORTS
+from bus.pins import OPTICAL_SWITCH, PORTS, port_masks, switch_levels
 
 from .avr import Mcu
 
@@ -112,10 +112,10 @@ class FirmwareDriver:
         pins = self._pins
         for k, letter in enumerate(PORTS):
             pins[k] = pin_in[letter]
-        for side, present in enumerate(self.switches() if self.switches is not None else (), start=1):
-            if present:
-                pin = OPTICAL_SWITCH[side]
-                pins[PORTS.index(pin.port)] |= pin.mask
+        if self.switches is not None:
+            wired, levels = port_masks(tuple(OPTICAL_SWITCH.values())), switch_levels(self.switches())
+            for k, letter in enumerate(PORTS):
+                pins[k] = pins[k] & ~wired[letter] | levels.get(letter, 0)
         self.program.set_pins(self._state, pins)
 
     def step(self) -> None:

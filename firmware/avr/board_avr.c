@@ -120,10 +120,10 @@ uint8_t board_tx_some(uint8_t uart, const uint8_t *data, uint8_t flash, uint8_t 
     return k;
 }
 
-void board_init(const uint8_t outputs[5])
+void board_init(const uint8_t outputs[5], const uint8_t pullups[5])
 {
     for (uint8_t p = 0; p < 5; p++)
-        *DDR[p] = outputs[p];
+        *DDR[p] = outputs[p], *PORT[p] = pullups[p];
     /* 8N1; UBRRH and UCSRC share an address on this part: URSEL picks UCSRC */
     UBRR0H = 0;
     UBRR0L = UART0_UBRR;
@@ -154,7 +154,7 @@ __attribute__((naked, used, section(".init3"))) static void timer_at_power_up(vo
 
 int main(void)
 {
-    board_init(program_outputs);
+    board_init(program_outputs, program_pullups);
     for (;;)
         program_step();
 }

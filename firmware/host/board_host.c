@@ -142,9 +142,10 @@ uint8_t board_pins(uint8_t p)
     return pin[p];
 }
 
-void board_init(const uint8_t outputs[5])
+void board_init(const uint8_t outputs[5], const uint8_t pullups[5])
 {
     (void)outputs;
+    (void)pullups; /* hexbot_setup sets them: the power-up state, before any step */
 }
 
 /* --- the simulator's entry points ------------------------------------------------ */
@@ -167,6 +168,7 @@ void hexbot_setup(void *state, uint64_t boot_ns, uint32_t byte_ns0, uint32_t byt
     boot = boot_ns;
     byte_ns[0] = byte_ns0;
     byte_ns[1] = byte_ns1;
+    memcpy(port, program_pullups, sizeof port); /* board_init's pull-ups, as at power-up */
     memcpy(state, __start_hexbot_state, hexbot_state_size());
 }
 

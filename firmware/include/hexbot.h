@@ -35,7 +35,8 @@
 enum { PORT_A, PORT_B, PORT_C, PORT_D, PORT_E };
 enum { UART0, UART1 };
 
-void board_init(const uint8_t outputs[5]);
+/* DDR from `outputs`, pull-ups (PORT bits of inputs) from `pullups`; UARTs, Timer0 tick. */
+void board_init(const uint8_t outputs[5], const uint8_t pullups[5]);
 uint16_t board_ticks(void);                  /* Timer0 overflows since power-up */
 uint8_t board_tick_reached(uint16_t target); /* board_ticks() has reached target (mod 2^16) */
 uint8_t board_rx_ready(uint8_t uart);        /* RXC: a received byte is waiting */
@@ -53,6 +54,7 @@ uint8_t board_pins(uint8_t port);            /* PINx: levels on the pins */
 
 /* --- each program provides --- */
 extern const uint8_t program_outputs[5];     /* DDR: which pins are outputs */
+extern const uint8_t program_pullups[5];     /* inputs pulled up (DIP, optical switches) */
 void program_step(void);
 
 /* --- coroutines --- */
@@ -82,11 +84,18 @@ enum { PT_WAITING = 0, PT_DONE = 1 };
 /* ReceiveByte */
 #define RX(pt, uart, dst) \
     do { PT_WAIT_UNTIL(pt, board_rx_ready(uart)); (dst) = board_rx_read(uart); } while (0)
-/* ReceiveByteTL(n): the byte, or ACK_TIMEOUT ('~') on the n-th overflow. */
+/* ReceiveByteTL(n): the byte, or ACK_TIMEOUT ('~') on the n-th overflow: a received '~'
+ * reads as a timeout, as in the thesis. */
 #define RX_TL(pt, uart, ticks, dst) \
     do { (pt)->t0 = (uint16_t)(board_ticks() + (ticks)); \
          PT_WAIT_UNTIL(pt, board_rx_ready(uart) || board_tick_reached((pt)->t0)); \
          (dst) = board_rx_ready(uart) ? board_rx_read(uart) : ACK_TIMEOUT; } while (0)
+/* The same, telling a timeout apart from a received byte (v2): `timed_out` is 1 or 0. */
+#define RX_TL2(pt, uart, ticks, dst, timed_out) \
+    do { (pt)->t0 = (uint16_t)(board_ticks() + (ticks)); \
+         PT_WAIT_UNTIL(pt, board_rx_ready(uart) || board_tick_reached((pt)->t0)); \
+         (timed_out) = !board_rx_ready(uart); \
+         (dst) = (timed_out) ? ACK_TIMEOUT : board_rx_read(uart); } while (0)
 /* TransmitByte for each byte of a RAM buffer: done when the last one is in UDR. */
 #define TX_BYTES(pt, uart, data, flash, len) \
     do { (pt)->k = 0; PT_WAIT_UNTIL(pt, ((pt)->k = board_tx_some(uart, (const uint8_t *)(data), \

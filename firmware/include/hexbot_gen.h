@@ -14,6 +14,8 @@
 #define HANDSHAKE_RETRY_TICKS 10
 #define LOCALIZE_LISTEN_TICKS 150
 #define LOCALIZE_SLOT_TICKS 54
+#define COIL_ON_LIMIT_TICKS 801
+#define SELFTEST_PULSE_TICKS 10
 #define UART0_UBRR 12
 #define DEBUG_UBRR 12
 #define IR_UBRR 207
@@ -66,6 +68,8 @@
 #define FC_Select 60
 #define FC_Report 61
 #define FC_Move 62
+#define FC_Version 63
+#define FC_SelfTest 64
 #define FC_Ref 65
 #define FC_Localize 66
 #define FC_CW 67
@@ -123,6 +127,8 @@
     {60, 2, 3, 1}, \
     {61, 2, 0, 1}, \
     {62, 2, 8, 1}, \
+    {63, 2, 0, 1}, \
+    {64, 1, 0, 1}, \
     {65, 2, 0, 0}, \
     {66, 2, 0, 0}, \
     {67, 2, 8, 0}, \
@@ -147,6 +153,7 @@
     {22, 57, 0}, \
     {23, 58, 0}, \
     {24, 59, 0}, \
+    {64, 0, 0}, \
 }
 
 /* --- pins (Tables 3-3, 3-4, 3-5; bus/pins.py): port index 0..4 = A..E, side/joint 1..6 --- */
@@ -162,9 +169,22 @@
 #define LED_NEG_MASKS {0, 0x20, 0x01, 0x80, 0x10, 0x01, 0x20}
 #define LED_JOINT_PORTS {0, 3, 0, 4, 2, 2, 3}
 #define LED_JOINT_MASKS {0, 0x80, 0x80, 0x04, 0x20, 0x04, 0x10}
-#define OPTICAL_SWITCH_PORTS {0, 1, 1, 1, 1, 1, 1}
-#define OPTICAL_SWITCH_MASKS {0, 0x01, 0x02, 0x10, 0x20, 0x40, 0x80}
+#define OPTICAL_SWITCH_PORTS {0, 1, 1, 1, 0, 0, 3}
+#define OPTICAL_SWITCH_MASKS {0, 0x01, 0x02, 0x10, 0x08, 0x10, 0x04}
 #define DIP_PORT 2
+/* 1: a switch that is ON (a DIP switch, a neighbour's optical switch) reads 0 */
+#define DIP_ACTIVE_LOW 1
+#define OPTICAL_SWITCH_ACTIVE_LOW 1
+#define CONTROL_PULLUPS_A 0x00
+#define CONTROL_PULLUPS_B 0x00
+#define CONTROL_PULLUPS_C 0xff
+#define CONTROL_PULLUPS_D 0x00
+#define CONTROL_PULLUPS_E 0x00
+#define COMM_PULLUPS_A 0x18
+#define COMM_PULLUPS_B 0x13
+#define COMM_PULLUPS_C 0x00
+#define COMM_PULLUPS_D 0x04
+#define COMM_PULLUPS_E 0x00
 #define CONTROL_UART_PINS_A 0x00
 #define CONTROL_UART_PINS_B 0x0c
 #define CONTROL_UART_PINS_C 0x00
@@ -205,6 +225,12 @@
 #define TXT_MSG "MSG"
 #define TXT_POS "POS"
 #define TXT_ACT "ACT"
+#define TXT_LIM "LIM"
+#define TXT_TST "TST"
+#define TXT_VER "VER"
+#define FIRMWARE_VERSION_MAJOR 2
+#define FIRMWARE_VERSION_MINOR 1
+#define PROFILE_V2_BYTE 2
 #define TXT_SIDE "Side: "
 #define TXT_YREF "Yref: "
 #define BYTE_START 0x2a
@@ -216,6 +242,18 @@
 #define PC_FRAME_LEN 11
 #define RELAY_FRAME_LEN 7
 #define MSG1_LEN 8
+/* what an image on the wrong board, or a board of unknown kind, prints (bus/chip.py) */
+#define TXT_GUARD_COMM_ON_CONTROL "\012\015\012\015WRONG BOARD: COMM IMAGE, EEPROM SAYS CONTROL\012\015"
+#define TXT_GUARD_CONTROL_ON_COMM "\012\015\012\015WRONG BOARD: CONTROL IMAGE, EEPROM SAYS COMM\012\015"
+#define TXT_GUARD_COMM_ON_NONE "\012\015\012\015UNKNOWN BOARD: COMM IMAGE, NO BOARD RECORD IN EEPROM\012\015"
+#define TXT_GUARD_CONTROL_ON_NONE "\012\015\012\015UNKNOWN BOARD: CONTROL IMAGE, NO BOARD RECORD IN EEPROM\012\015"
+
+/* --- the EEPROM board-kind record (bus/chip.py) --- */
+#define BOARD_RECORD_ADDR 0
+#define BOARD_RECORD_MAGIC0 0x48
+#define BOARD_RECORD_MAGIC1 0x42
+#define BOARD_KIND_CONTROL 1
+#define BOARD_KIND_COMM 2
 
 /* --- rotations (bus/rotations.py): pairs (op, arg), op 1 open, 2 pos, 3 neg,
  * 4 close_all, 5 off_all, 6 wait (arg 1..3 = t1..t3); others act on i + arg. --- */

@@ -7,6 +7,8 @@
 
 const uint8_t program_outputs[5] = {COMM_OUTPUTS_A, COMM_OUTPUTS_B, COMM_OUTPUTS_C,
                                     COMM_OUTPUTS_D, COMM_OUTPUTS_E};
+const uint8_t program_pullups[5] = {COMM_PULLUPS_A, COMM_PULLUPS_B, COMM_PULLUPS_C,
+                                    COMM_PULLUPS_D, COMM_PULLUPS_E};
 
 static const uint8_t POS_PORT[7] FW_CONST = LED_POS_PORTS;
 static const uint8_t POS_MASK[7] FW_CONST = LED_POS_MASKS;
@@ -80,7 +82,8 @@ static void LOff(void)
 #if HEXBOT_V2
 static uint8_t neighbour(uint8_t side)
 {
-    return (board_pins(fw_byte(&SW_PORT[side])) & fw_byte(&SW_MASK[side])) != 0;
+    uint8_t high = (board_pins(fw_byte(&SW_PORT[side])) & fw_byte(&SW_MASK[side])) != 0;
+    return OPTICAL_SWITCH_ACTIVE_LOW ? !high : high; /* a neighbour pulls it low */
 }
 #endif
 

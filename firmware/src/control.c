@@ -5,6 +5,8 @@
 
 const uint8_t program_outputs[5] = {CONTROL_OUTPUTS_A, CONTROL_OUTPUTS_B, CONTROL_OUTPUTS_C,
                                     CONTROL_OUTPUTS_D, CONTROL_OUTPUTS_E};
+const uint8_t program_pullups[5] = {CONTROL_PULLUPS_A, CONTROL_PULLUPS_B, CONTROL_PULLUPS_C,
+                                    CONTROL_PULLUPS_D, CONTROL_PULLUPS_E};
 
 static const uint8_t JOINT_PORT[7] FW_CONST = JOINT_PORTS;
 static const uint8_t JOINT_MASK[7] FW_CONST = JOINT_MASKS;
@@ -25,6 +27,15 @@ static const char S_CTR_LST[] FW_CONST = TXT_CTR_LST;
 /* v2 actuator reports (docs/protocol.md): once the board listens, every step that changes
  * a solenoid or relay sends one ACT line in the background. */
 static uint8_t reporting, reported[3], have_reported;
+
+#if HEXBOT_V2
+/* The DIP switches: an ON switch pulls its pin low against the pull-up (bus/pins.py). */
+static uint8_t dip_id(void)
+{
+    uint8_t levels = board_pins(DIP_PORT);
+    return DIP_ACTIVE_LOW ? (uint8_t)~levels : levels;
+}
+#endif
 
 static void JxOpen(int16_t i) { pin_change(JOINT_PORT, JOINT_MASK, i, 1); }
 static void JxClose(int16_t i) { pin_change(JOINT_PORT, JOINT_MASK, i, 0); }
@@ -139,7 +150,7 @@ static uint8_t co_main(void)
     byte = BYTE_LISTENING;
     TX(pt, UART0, &byte, 1);
 #if HEXBOT_V2
-    byte = board_pins(DIP_PORT); /* the DIP switches are the module's id */
+    byte = dip_id(); /* the DIP switches are the module's id */
     TX(pt, UART0, &byte, 1);
     reporting = 1;
 #endif
