@@ -67,7 +67,8 @@ def ensure_built() -> None:
 
 F_CPU = 1_000_000
 TIMER0_PRESCALER = 64
-TIMER0_RELOAD = 0x64
+#: Timer0 in CTC mode counts 0..TIMER0_TOP: 156 counts of 64 us, the 9.984 ms tick.
+TIMER0_TOP = 155
 
 #: Rotation step opcodes of the generated tables.
 _OPS = {"open": 1, "pos": 2, "neg": 3, "close_all": 4, "off_all": 5, "wait": 6}
@@ -120,7 +121,7 @@ def header() -> str:
         "/* --- clocks and timing (spec section 3, bus/timing.py) --- */",
         f"#define HEXBOT_F_CPU {F_CPU}UL",
         f"#define TIMER0_PRESCALER {TIMER0_PRESCALER}",
-        f"#define TIMER0_RELOAD 0x{TIMER0_RELOAD:02x}",
+        f"#define TIMER0_TOP {TIMER0_TOP}",
         f"#define TICK_NS {timing.TICK_NS}UL",
         f"#define BOOT_SETTLE_TICKS {timing.BOOT_SETTLE_TICKS}",
         f"#define ECHO_TIMEOUT_TICKS {timing.ECHO_TIMEOUT_TICKS}",
@@ -128,7 +129,8 @@ def header() -> str:
         f"#define HANDSHAKE_RETRY_TICKS {timing.HANDSHAKE_RETRY_TICKS}",
         f"#define LOCALIZE_LISTEN_TICKS {timing.LOCALIZE_LISTEN_TICKS}",
         f"#define LOCALIZE_SLOT_TICKS {timing.localize_slot_ticks(timing.Baud.IR)}",
-        f"#define COIL_ON_LIMIT_TICKS {timing.COIL_ON_LIMIT_TICKS}",
+        f"#define MAGNET_ON_LIMIT_TICKS {timing.MAGNET_ON_LIMIT_TICKS}",
+        f"#define SOLENOID_ON_LIMIT_TICKS {timing.SOLENOID_ON_LIMIT_TICKS}",
         f"#define SELFTEST_PULSE_TICKS {timing.SELFTEST_PULSE_TICKS}",
         f"#define UART0_UBRR {ubrr(timing.Baud.UART0)}",
         f"#define DEBUG_UBRR {ubrr(timing.Baud.DEBUG)}",

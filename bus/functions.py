@@ -153,7 +153,9 @@ _DEFINED: tuple[Function, ...] = (
          "addressed rotation: the two named modules act at once", profile="v2", ack=Ack.ECHO),
     _com(63, "Version", (), "report the firmware's version and profile on the centre channel",
          profile="v2"),
-    Function(64, "SelfTest", Board.CONTROL, (), (), Ack.ECHO, profile="v2",
+    Function(64, "SelfTest", Board.CONTROL,
+             (Arg("switches", 0, 63, doc="the PC sends 0; the comm board relays its optical switches"),),
+             (), Ack.ECHO, profile="v2",
              doc="each actuator in turn, briefly; the DIP id and the optical switches on the "
                  "debug UART"),
     Function(126, "Timeout", Board.RESERVED, doc="'~': a receive timed out"),

@@ -36,11 +36,15 @@ HANDSHAKE_RETRY_TICKS = 10
 #: A listener waits this long per side for the '*' of MSG1 (Appendix A `Localize`).
 LOCALIZE_LISTEN_TICKS = 150
 
-#: The longest a solenoid or magnet may stay energised without a pause (ours, both profiles):
-#: past it the control board switches the coil off and reports it (``LIM``, docs/protocol.md).
-#: Longer than any single command holds a coil (a rotation with t1 = t2 = t3 = 255 holds its
-#: joints 7.65 s), so no command of the protocol meets it; a coil forgotten on is caught in 8 s.
-COIL_ON_LIMIT_TICKS = 801
+#: The longest a coil may stay energised without a pause (ours, both profiles): past it the
+#: control board switches it off and reports it (``LIM``, docs/protocol.md). A magnet (24 V,
+#: 2 A: 48 W) is on only inside a rotation, at most t2 + t3 = 510 ticks with the largest
+#: arguments (0.13 s at the thesis timing): 8 s catches one forgotten on. A solenoid (5 V,
+#: 0.5 A) is held open by the PC while a neighbour moves away: every release of a move is
+#: opened before it and closed after it, one frame at a time at 300 baud (up to about 35 s for
+#: a mobile with five neighbours), so its limit is a minute.
+MAGNET_ON_LIMIT_TICKS = 801
+SOLENOID_ON_LIMIT_TICKS = 6010
 
 #: SelfTest (ours): each actuator on this long, then off as long, one after another.
 SELFTEST_PULSE_TICKS = 10

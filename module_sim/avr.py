@@ -7,6 +7,8 @@ A program yields operations instead of busy-waiting:
   The timer runs freely from power-up, so the first tick comes anywhere in (0, 9.984] ms.
 * ``b = yield Rx(uart)`` — ``ReceiveByte``: resumes with the next received byte.
 * ``b = yield Rx(uart, n)`` — ``ReceiveByteTL(n)``: or with ``'~'`` on the n-th tick.
+* ``b = yield Rx(uart, n, tell_timeout=True)`` — the same, but None on the n-th tick, so a
+  received ``'~'`` is a byte like any other (v2's id byte).
 * ``yield Tx(uart, data)`` — ``TransmitByte`` for each byte: resumes when the last byte
   has been written to UDR. The UART double-buffers (UDR + shift register), so the program
   runs on while the last one or two bytes are still on the wire, exactly as on the chip.
@@ -36,6 +38,7 @@ class Delay:
 class Rx:
     uart: "Uart"
     timeout_ticks: int | None = None
+    tell_timeout: bool = False
 
 
 @dataclass(slots=True)
@@ -125,6 +128,7 @@ class Mcu:
         self._program: Program | None = None
         self._waiting_rx: Uart | None = None
         self._rx_timer: Timer | None = None
+        self._rx_timeout_value: int | None = TIMEOUT
         self.halted = False
         #: the C firmware running as this board's program (module_sim.firmware), if any
         self.driver = None
@@ -185,6 +189,7 @@ class Mcu:
                     continue
                 self._waiting_rx = op.uart
                 if op.timeout_ticks is not None:
+                    self._rx_timeout_value = None if op.tell_timeout else TIMEOUT
                     self._rx_timer = self.clock.call_at(self.tick_deadline(op.timeout_ticks),
                                                         self._rx_timeout)
                 return
@@ -220,4 +225,4 @@ class Mcu:
         self._rx_timer = None
         if self._waiting_rx is not None:
             self._waiting_rx = None
-            self._resume(TIMEOUT)
+            self._resume(self._rx_timeout_value)

@@ -366,8 +366,9 @@ class CommBoard(Mcu):
         while (yield Rx(u0, HANDSHAKE_RETRY_TICKS)) != _L:
             yield Tx(u0, b"R")
         if self.profile.addressing:
-            ident = yield Rx(u0, HANDSHAKE_RETRY_TICKS)
-            self.id = 0 if ident == TIMEOUT else ident
+            # any byte is an id, '~' (126) too: only silence means none
+            ident = yield Rx(u0, HANDSHAKE_RETRY_TICKS, tell_timeout=True)
+            self.id = 0 if ident is None else ident
         yield from self.LFlash2(3, 10)
         yield Tx(u1, codec.encode_banner("CTR_LST"))
         yield from self.LCircle(1, 5)
@@ -446,6 +447,8 @@ class CommBoard(Mcu):
         """Send a control-board function over UART0 and wait for its echo (``MSG`` in C)."""
         fn = FUNCTIONS[code]
         rargs = [0] if code in _ZERO_ARG else args[:len(fn.args)]
+        if code == F.SelfTest:
+            rargs = [self.switch_bits()]  # the control board reports them with its DIP id
         yield Tx(self.uart0, codec.encode_relay(code, *rargs))
         return (yield Rx(self.uart0, ECHO_TIMEOUT_TICKS))
 
@@ -508,6 +511,14 @@ class CommBoard(Mcu):
         goal = rule.cells(Cell(self.X, self.Y))[2]
         self.X, self.Y = goal.x, goal.y
         self.Yref = orientation_after(self.Yref, rule.direction)
+
+    def switch_bits(self) -> int:
+        """The optical switches as one byte: bit s-1 = a neighbour on body side s."""
+        return sum(1 << k for k, present in enumerate(self.neighbours()) if present)
+
+    def Version(self) -> Program:
+        """v2: the firmware's version and profile on the centre channel (the ACK follows)."""
+        yield Tx(self.uart1, codec.encode_version(role=self.role))
 
     def Report(self) -> Program:
         """v2: id, X, Y, Yref and flags on the centre channel (the ACK follows)."""

@@ -13,7 +13,8 @@ from bus.clock import Clock
 from bus.functions import FUNCTIONS, Board
 from bus.pins import (CONTROL_PULLUPS, CONTROL_UART_PINS, DIP_PORT, JOINT, MAGNET_NEG, MAGNET_POS, Pin,
                       dip_id, dip_levels, fold, port_masks)
-from bus.timing import BOOT_SETTLE_TICKS, HANDSHAKE_RETRY_TICKS, Baud
+from bus.timing import (BOOT_SETTLE_TICKS, HANDSHAKE_RETRY_TICKS, MAGNET_ON_LIMIT_TICKS,
+                        SELFTEST_PULSE_TICKS, SOLENOID_ON_LIMIT_TICKS, TICK_NS, Baud)
 
 from .avr import Delay, Mcu, Program, Rx, Tx, Uart
 from .profiles import Profile
@@ -28,6 +29,13 @@ for _p in JOINT.values():
 _ACTUATOR_MASK: dict[str, int] = {}
 for _p in (*JOINT.values(), *MAGNET_POS.values(), *MAGNET_NEG.values()):
     _ACTUATOR_MASK[_p.port] = _ACTUATOR_MASK.get(_p.port, 0) | _p.mask
+
+
+#: The on-time limit of each group of coils: solenoids, magnets positive, negative.
+_LIMIT = (SOLENOID_ON_LIMIT_TICKS, MAGNET_ON_LIMIT_TICKS, MAGNET_ON_LIMIT_TICKS)
+#: Every coil as (group, side): group 0 solenoids, 1 magnets positive, 2 negative (as in ACT).
+_COILS: tuple[tuple[int, int, Pin], ...] = tuple(
+    (g, s, table[s]) for g, table in enumerate((JOINT, MAGNET_POS, MAGNET_NEG)) for s in range(1, 7))
 
 
 def _keep_mask(port: str) -> int:
@@ -54,6 +62,10 @@ class ControlBoard(Mcu):
         self._reporting = False
         self._report_due = False
         self._reported: bytes | None = None
+        # the on-time limit (both profiles): the tick each coil has been on since
+        self._coil_since: dict[tuple[int, int], int] = {}
+        self._guard_due = False
+        self._limit_timers: set[int] = set()
 
     # -- outputs (Table 3-3) ------------------------------------------------------------
     def _on(self, pin: Pin) -> None:
@@ -80,9 +92,46 @@ class ControlBoard(Mcu):
     def _write(self, port: str, value: int) -> None:
         changed = self.port[port] ^ value
         super()._write(port, value)
-        if changed & _ACTUATOR_MASK.get(port, 0) and self._reporting and not self._report_due:
+        if not changed & _ACTUATOR_MASK.get(port, 0):
+            return
+        if not self._guard_due and self.driver is None:  # the C program has its own guard
+            # the guard first, then the report, as the C step does
+            self._guard_due = True
+            self.clock.call_later(0, self._coil_guard)
+        if self._reporting and not self._report_due:
             self._report_due = True  # one report for all the bits a step changes at once
             self.clock.call_later(0, self._report)
+
+    # -- the coil on-time limit (ours, both profiles; bus/timing.py) ----------------------------
+    def _coil_guard(self) -> None:
+        """Note when each coil came on; book a check for its limit."""
+        self._guard_due = False
+        now_tick = self.tick_count()
+        for g, s, pin in _COILS:
+            if not self.port[pin.port] & pin.mask:
+                self._coil_since.pop((g, s), None)
+            elif (g, s) not in self._coil_since:
+                self._coil_since[(g, s)] = now_tick
+                due = now_tick + _LIMIT[g]
+                if due not in self._limit_timers:  # one check for coils that came on together
+                    self._limit_timers.add(due)
+                    self.clock.call_at(self._boot_ns + due * TICK_NS, self._coil_limit, due)
+
+    def _coil_limit(self, due: int) -> None:
+        """Switch off every coil on since ``due - limit`` or earlier; say which (``LIM``)."""
+        self._limit_timers.discard(due)
+        now_tick = self.tick_count()
+        over = [(g, s) for (g, s), since in self._coil_since.items() if since + _LIMIT[g] <= now_tick]
+        if not over:
+            return
+        bits = [0, 0, 0]
+        for g, s in over:
+            bits[g] |= 1 << (s - 1)
+            del self._coil_since[(g, s)]
+        self.uart1.write(codec.encode_coil_limit(*bits), self.clock.now_ns())
+        for g, s, pin in _COILS:
+            if bits[g] >> (s - 1) & 1:
+                self._off(pin)
 
     def actuator_bits(self) -> tuple[list[bool], list[int]]:
         """Solenoids J1..J6 (True = energised) and magnets S1..S6 as in
@@ -143,6 +192,16 @@ class ControlBoard(Mcu):
 
     def SNTest(self, n: int, t: int) -> Program:
         yield from self._magnet_test(self.SxN, n, t)
+
+    def SelfTest(self, switches: int) -> Program:
+        """v2: each coil on for a pulse and off as long (the ACT reports show each), then the
+        DIP id and the comm board's optical switches in a ``TST`` line."""
+        for _, _, pin in _COILS:
+            self._on(pin)
+            yield Delay(SELFTEST_PULSE_TICKS)
+            self._off(pin)
+            yield Delay(SELFTEST_PULSE_TICKS)
+        yield Tx(self.uart1, codec.encode_self_test(dip_id(self.pin_in[DIP_PORT]), switches))
 
     def _rotation(self, name: str, i: int, t1: int, t2: int, t3: int) -> Program:
         """Run a rotation of :mod:`bus.rotations` on the relays and solenoids."""

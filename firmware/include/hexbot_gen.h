@@ -6,7 +6,7 @@
 /* --- clocks and timing (spec section 3, bus/timing.py) --- */
 #define HEXBOT_F_CPU 1000000UL
 #define TIMER0_PRESCALER 64
-#define TIMER0_RELOAD 0x64
+#define TIMER0_TOP 155
 #define TICK_NS 9984000UL
 #define BOOT_SETTLE_TICKS 10
 #define ECHO_TIMEOUT_TICKS 250
@@ -14,7 +14,8 @@
 #define HANDSHAKE_RETRY_TICKS 10
 #define LOCALIZE_LISTEN_TICKS 150
 #define LOCALIZE_SLOT_TICKS 54
-#define COIL_ON_LIMIT_TICKS 801
+#define MAGNET_ON_LIMIT_TICKS 801
+#define SOLENOID_ON_LIMIT_TICKS 6010
 #define SELFTEST_PULSE_TICKS 10
 #define UART0_UBRR 12
 #define DEBUG_UBRR 12
@@ -128,7 +129,7 @@
     {61, 2, 0, 1}, \
     {62, 2, 8, 1}, \
     {63, 2, 0, 1}, \
-    {64, 1, 0, 1}, \
+    {64, 1, 1, 1}, \
     {65, 2, 0, 0}, \
     {66, 2, 0, 0}, \
     {67, 2, 8, 0}, \

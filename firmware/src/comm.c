@@ -85,6 +85,16 @@ static uint8_t neighbour(uint8_t side)
     uint8_t high = (board_pins(fw_byte(&SW_PORT[side])) & fw_byte(&SW_MASK[side])) != 0;
     return OPTICAL_SWITCH_ACTIVE_LOW ? !high : high; /* a neighbour pulls it low */
 }
+
+/* The six optical switches, bit s-1 = a neighbour on side s. */
+static uint8_t switch_bits(void)
+{
+    uint8_t bits = 0;
+    for (uint8_t s = 1; s <= 6; s++)
+        if (neighbour(s))
+            bits |= (uint8_t)(1u << (s - 1));
+    return bits;
+}
 #endif
 
 /* --- UART1 lines ------------------------------------------------------------------ */
@@ -266,6 +276,10 @@ static uint8_t co_relay(uint8_t code, const uint8_t *a)
         relay_frame[2 + k] = k < fn_nargs(code) ? a[k] : ARG_UNUSED;
     if (code == FC_JxOpenAll || code == FC_JxCloseAll)
         relay_frame[2] = 0; /* these two send 0, not 'N', first (Appendix A) */
+#if HEXBOT_V2
+    if (code == FC_SelfTest)
+        relay_frame[2] = switch_bits(); /* the control board reports them with the DIP id */
+#endif
     relay_frame[6] = BYTE_END;
     TX(pt, UART0, relay_frame, RELAY_FRAME_LEN);
     RX_TL(pt, UART0, ECHO_TIMEOUT_TICKS, relay_result);
@@ -522,6 +536,20 @@ static uint8_t co_position(void)
     PT_END(pt);
 }
 
+/* Version(): preamble, role, "VER" major minor profile, EOL. */
+static uint8_t co_version(void)
+{
+    pt_t *pt = &pt_pos;
+    PT_BEGIN(pt);
+    out_len = pre(out);
+    out[out_len++] = TXT_VER[0], out[out_len++] = TXT_VER[1], out[out_len++] = TXT_VER[2];
+    out[out_len++] = FIRMWARE_VERSION_MAJOR, out[out_len++] = FIRMWARE_VERSION_MINOR;
+    out[out_len++] = PROFILE_V2_BYTE;
+    out[out_len++] = TXT_EOL[0], out[out_len++] = TXT_EOL[1];
+    TX(pt, UART1, out, out_len);
+    PT_END(pt);
+}
+
 /* Select(mode, a, b): which modules obey the frames that follow. */
 static void select_modules(uint8_t mode, uint8_t a, uint8_t b)
 {
@@ -608,6 +636,7 @@ static uint8_t run_comm(uint8_t code, const uint8_t *a)
     case FC_CW: case FC_CCW: return co_turn(code, a);
 #if HEXBOT_V2
     case FC_Report: return co_position();
+    case FC_Version: return co_version();
 #endif
     default: return PT_DONE;
     }
@@ -724,6 +753,9 @@ static uint8_t co_listen(void)
 /* --- main ------------------------------------------------------------------------------ */
 static pt_t pt_main;
 static uint8_t m_byte;
+#if HEXBOT_V2
+static uint8_t m_timed_out;
+#endif
 
 static uint8_t co_main(void)
 {
@@ -749,8 +781,9 @@ static uint8_t co_main(void)
         TX(pt, UART0, &m_byte, 1);
     }
 #if HEXBOT_V2
-    RX_TL(pt, UART0, HANDSHAKE_RETRY_TICKS, m_byte); /* the control board's DIP switches */
-    id = m_byte == ACK_TIMEOUT ? 0 : m_byte;
+    /* the control board's DIP switches: any byte is an id, '~' (126) too; silence is none */
+    RX_TL2(pt, UART0, HANDSHAKE_RETRY_TICKS, m_byte, m_timed_out);
+    id = m_timed_out ? 0 : m_byte;
 #endif
     PT_CALL(pt, co_flash(FC_LFlash2, 3, 10));
     TX_P(pt, UART1, S_CTR_LST);

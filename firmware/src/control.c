@@ -102,6 +102,37 @@ static uint8_t co_test(uint8_t code, uint8_t n, uint8_t t)
     PT_END(pt);
 }
 
+#if HEXBOT_V2
+/* SelfTest(switches): each solenoid, then each magnet positive, then negative, on for a pulse
+ * and off as long (the ACT reports show each); then "TST" id switches on the debug UART. */
+static pt_t pt_selftest;
+static uint8_t st_k;
+static uint8_t st_line[7];
+
+static void selftest_coil(uint8_t k, uint8_t on)
+{
+    const uint8_t *ports = k < 6 ? JOINT_PORT : k < 12 ? POS_PORT : NEG_PORT;
+    const uint8_t *masks = k < 6 ? JOINT_MASK : k < 12 ? POS_MASK : NEG_MASK;
+    pin_change(ports, masks, (int16_t)(k % 6 + 1), on);
+}
+
+static uint8_t co_selftest(uint8_t switches)
+{
+    pt_t *pt = &pt_selftest;
+    PT_BEGIN(pt);
+    for (st_k = 0; st_k < 18; st_k++) {
+        selftest_coil(st_k, 1);
+        DELAY(pt, SELFTEST_PULSE_TICKS);
+        selftest_coil(st_k, 0);
+        DELAY(pt, SELFTEST_PULSE_TICKS);
+    }
+    st_line[0] = TXT_TST[0], st_line[1] = TXT_TST[1], st_line[2] = TXT_TST[2];
+    st_line[3] = dip_id(), st_line[4] = switches, st_line[5] = TXT_EOL[0], st_line[6] = TXT_EOL[1];
+    TX(pt, UART1, st_line, 7);
+    PT_END(pt);
+}
+#endif
+
 static pt_t pt_rotation;
 
 /* Run code with its arguments; PT_DONE when finished (at once for the instant ones). */
@@ -120,6 +151,9 @@ static uint8_t execute(uint8_t code, const uint8_t *a)
     case FC_JTest: case FC_SPTest: case FC_SNTest: return co_test(code, a[0], a[1]);
     case FC_MCW: case FC_MCCW: case FC_SCW: case FC_SCCW:
         return co_rotation(&pt_rotation, rotation_steps(code), a[0], &a[1], rotation_act);
+#if HEXBOT_V2
+    case FC_SelfTest: return co_selftest(a[0]);
+#endif
     default: return PT_DONE; /* the thesis's if-chain matches nothing */
     }
 }
@@ -178,9 +212,10 @@ static uint8_t co_main(void)
     PT_END(pt);
 }
 
-static void report(void)
+/* Which coils are on: solenoids J1..J6, magnets positive and negative (bit s-1 = side s). */
+static void coil_bits(uint8_t bits[3])
 {
-    uint8_t bits[3] = {0, 0, 0};
+    bits[0] = bits[1] = bits[2] = 0;
     for (uint8_t s = 1; s <= 6; s++) {
         uint8_t b = (uint8_t)(1u << (s - 1));
         if (board_port(fw_byte(&JOINT_PORT[s])) & fw_byte(&JOINT_MASK[s]))
@@ -190,6 +225,57 @@ static void report(void)
         if (board_port(fw_byte(&NEG_PORT[s])) & fw_byte(&NEG_MASK[s]))
             bits[2] |= b;
     }
+}
+
+/* The on-time limits (ours, both profiles; bus/timing.py): a coil seen on at the end of every
+ * step since tick t0 is switched off on tick t0 + its limit, and a "LIM" line
+ * names it on the debug UART. A step looks at the coils only when they changed or when the
+ * earliest limit is due, so the main loop stays as quick as before. */
+static uint8_t coil_on[3], guard_armed;
+static uint16_t coil_since[3][6], guard_due;
+
+static void coil_guard(uint8_t changed)
+{
+    if (!changed && !(guard_armed && board_tick_reached(guard_due)))
+        return;
+    uint8_t bits[3], over[3] = {0, 0, 0}, any = 0;
+    coil_bits(bits);
+    guard_armed = 0;
+    for (uint8_t g = 0; g < 3; g++) {
+        for (uint8_t s = 0; s < 6; s++) {
+            uint8_t b = (uint8_t)(1u << s);
+            if (!(bits[g] & b))
+                continue;
+            if (!(coil_on[g] & b))
+                coil_since[g][s] = board_ticks();
+            uint16_t due = (uint16_t)(coil_since[g][s] + (g ? MAGNET_ON_LIMIT_TICKS : SOLENOID_ON_LIMIT_TICKS));
+            if (board_tick_reached(due)) {
+                over[g] |= b, any = 1;
+            } else if (!guard_armed || (int16_t)(due - guard_due) < 0) {
+                guard_due = due, guard_armed = 1;
+            }
+        }
+        coil_on[g] = (uint8_t)(bits[g] & ~over[g]);
+    }
+    if (!any)
+        return;
+    for (uint8_t s = 1; s <= 6; s++) {
+        uint8_t b = (uint8_t)(1u << (s - 1));
+        if (over[0] & b)
+            JxClose(s);
+        if (over[1] & b)
+            pin_change(POS_PORT, POS_MASK, s, 0);
+        if (over[2] & b)
+            pin_change(NEG_PORT, NEG_MASK, s, 0);
+    }
+    uint8_t out[8] = {TXT_LIM[0], TXT_LIM[1], TXT_LIM[2], over[0], over[1], over[2], TXT_EOL[0], TXT_EOL[1]};
+    board_tx_queue(UART1, out, sizeof out);
+}
+
+static void report(void)
+{
+    uint8_t bits[3];
+    coil_bits(bits);
     if (have_reported && bits[0] == reported[0] && bits[1] == reported[1] && bits[2] == reported[2])
         return;
     uint8_t out[8] = {TXT_ACT[0], TXT_ACT[1], TXT_ACT[2], bits[0], bits[1], bits[2], TXT_EOL[0], TXT_EOL[1]};
@@ -199,14 +285,21 @@ static void report(void)
     }
 }
 
+static uint8_t actuators_changed(const uint8_t before[5])
+{
+    uint8_t changed = 0;
+    for (uint8_t p = 0; p < 5; p++)
+        changed |= (uint8_t)((board_port(p) & ACTUATOR_BITS[p]) != before[p]);
+    return changed;
+}
+
 void program_step(void)
 {
-    uint8_t before[5], changed = 0;
+    uint8_t before[5];
     for (uint8_t p = 0; p < 5; p++)
         before[p] = board_port(p) & ACTUATOR_BITS[p];
     co_main();
-    for (uint8_t p = 0; p < 5; p++)
-        changed |= (uint8_t)((board_port(p) & ACTUATOR_BITS[p]) != before[p]);
-    if (changed && reporting) /* one report for every bit a step changed */
+    coil_guard(actuators_changed(before));
+    if (reporting && actuators_changed(before)) /* one report for every bit a step changed */
         report();
 }
