@@ -12,10 +12,10 @@ from typing import Sequence
 
 from bus.errors import HexbenchError, UsageError
 
-from . import firmware, fleet, hil, plan, record, tools
+from . import firmware, fleet, hil, plan, programmer, record, tools
 
 #: Modules whose ``register`` adds subcommands, in help order.
-COMMANDS = (tools, fleet, plan, record, hil, firmware)
+COMMANDS = (tools, fleet, plan, record, hil, firmware, programmer)
 
 
 def _version() -> str:

@@ -7,24 +7,37 @@ with the Python model (the differential).
 * ``hexbench firmware diff``: one PC script against the Python model (virtual clock) and the
   firmware (simavr, cycle-exact, as fast as it goes); prints the first difference of every
   stream (centre IR, side IR, debug UART, each port) with its time and exits 1 if any.
+* ``hexbench firmware flash --board KIND``: back the board up, then write the fuses, the
+  image and the board-kind record with avrdude (docs/firmware.md, "Flashing a board").
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import shutil
 import subprocess
 import sys
+import tempfile
 import threading
+import time
 from collections import defaultdict
 from dataclasses import dataclass
+from pathlib import Path
 
 from bus import UsageError
+from bus.chip import FUSES, ISP_BITCLOCK_US, BoardKind, board_record, read_board_record
 from bus.codec import encode_command
+from bus.errors import HexbenchError
 from bus.timing import NS_PER_S, TICK_NS
+from hil.avrdude import Avrdude, AvrdudeError, used
+from hil.isp import format_ihex, fuses_of, fuses_text
 
 #: How far a firmware event may be from the model's: one tick (the programs only know time
 #: in ticks), plus the nominal-versus-UBRR baud drift over a long line (300 vs 300.48 baud).
 TOLERANCE_NS = TICK_NS + 3_000_000
+#: Backups outside any checkout, so that neither git nor ``make clean`` touches them.
+BACKUP_DIR = Path(os.environ.get("XDG_DATA_HOME") or Path.home() / ".local" / "share") / "hexbench" / "backups"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -49,6 +62,22 @@ def register(sub: argparse._SubParsersAction) -> None:
     d.add_argument("--seconds", type=float, help="sim seconds to run (default: the script's end + 5)")
     d.add_argument("--print-script", action="store_true", help="print the default script and exit")
     d.set_defaults(func=cmd_diff)
+    f = fsub.add_parser("flash", help="back a board up, then write fuses, image and board record (avrdude)",
+                        description="Read the board's flash, EEPROM and fuses into a backup folder, "
+                                    "then write the fuses, the image and the board-kind record, "
+                                    "each verified. See docs/firmware.md, 'Flashing a board'.")
+    f.add_argument("--board", choices=["comm", "control"], required=True, help="which board is on the programmer")
+    f.add_argument("--profile", choices=["v2", "thesis-2009"], default="v2")
+    f.add_argument("--programmer", default="avrispmkII", help="avrdude's -c (default avrispmkII)")
+    f.add_argument("--port", help="avrdude's -P (default: avrdude's for the programmer, usb for an AVRISP mkII)")
+    f.add_argument("--bitclock", type=float, default=ISP_BITCLOCK_US, metavar="US",
+                   help=f"avrdude's -B, the ISP clock period in us (default {ISP_BITCLOCK_US}: "
+                        "a 1 MHz chip needs SCK below 250 kHz)")
+    f.add_argument("--backup-dir", type=Path, default=BACKUP_DIR, metavar="DIR",
+                   help=f"where the backup folder goes (default {BACKUP_DIR})")
+    f.add_argument("--force-board", action="store_true",
+                   help="write even if the board's EEPROM record names the other board")
+    f.set_defaults(func=cmd_flash)
 
 
 # -- the default differential script ----------------------------------------------------------
@@ -203,3 +232,87 @@ def cmd_diff(args: argparse.Namespace) -> int:
         print("  " + d.describe())
     print("same" if not diffs else f"{len(diffs)} streams differ")
     return 1 if diffs else 0
+
+
+# -- flashing a board --------------------------------------------------------------------------------
+def flash_image(board: str, profile: str) -> Path:
+    """``firmware/build/<board>-<v2|thesis>.hex``, built (``make -C firmware images``) if missing."""
+    from bus.cheader import FIRMWARE_DIR, FirmwareError, build_path
+
+    try:
+        image = build_path("elf", board, profile).with_suffix(".hex")
+    except FirmwareError as exc:
+        raise UsageError(str(exc)) from None
+    if not image.exists():
+        r = subprocess.run(["make", "-s", "-C", str(FIRMWARE_DIR), "images", f"PYTHON={sys.executable}"],
+                           capture_output=True, text=True)
+        if r.returncode != 0 or not image.exists():
+            tail = (r.stderr or r.stdout).strip().splitlines()[-1:] or ["(no output)"]
+            raise UsageError(f"{image} is missing and 'make -C {FIRMWARE_DIR} images' failed: {tail[0]} "
+                             "(it needs gcc-avr and avr-libc)")
+    return image
+
+
+def _backup_folder(parent: Path, board: str) -> Path:
+    """A new ``<parent>/<board>-<UTC time>`` folder (``-2``, ``-3``... within one second)."""
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+    for n in range(1, 100):
+        folder = parent / (f"{board}-{stamp}" + (f"-{n}" if n > 1 else ""))
+        try:
+            folder.mkdir(parents=True)
+            return folder
+        except FileExistsError:
+            continue
+        except OSError as exc:
+            raise UsageError(f"--backup-dir {parent}: {exc.strerror or exc}") from None
+    raise UsageError(f"--backup-dir {parent}: no free folder name for {board}-{stamp}")
+
+
+def cmd_flash(args: argparse.Namespace) -> int:
+    """a. back the board up; b. refuse the other board's image; c. write fuses, image and
+    board record, verified; d. say what was done."""
+    kind = BoardKind[args.board.upper()]
+    try:
+        avrdude = Avrdude(args.programmer, args.port, bitclock_us=args.bitclock)
+    except AvrdudeError as exc:
+        raise UsageError(str(exc)) from None
+    image = flash_image(args.board, args.profile)
+    folder, backup = _back_up(avrdude, args.backup_dir, args.board)
+    found = read_board_record(backup["eeprom"])
+    print(f"backup: {folder} (flash {used(backup['flash'])} B in use, fuses "
+          f"{fuses_text(fuses_of(backup))}, board record: {found.name.lower() if found else 'none'})")
+    if found is not None and found != kind and not args.force_board:
+        raise UsageError(f"the board's EEPROM says it is a {found.name.lower()} board, not a "
+                         f"{args.board} board: nothing was written (--force-board to write anyway)")
+    verified = _write(avrdude, image, kind, folder)
+    print(f"fuses: {fuses_text(FUSES)}, {sum(verified.get(m, 0) for m in ('lfuse', 'hfuse', 'efuse'))} "
+          "of 3 verified")
+    print(f"flash: {image}, {verified.get('flash', 0)} B verified")
+    print(f"eeprom: board record '{args.board}' at 0, {verified.get('eeprom', 0)} B verified")
+    return 0
+
+
+def _back_up(avrdude: Avrdude, parent: Path, board: str) -> tuple[Path, dict[str, bytes]]:
+    """The board's memories, read into a new folder before anything is written."""
+    folder = _backup_folder(parent, board)
+    try:
+        return folder, avrdude.read(folder)
+    except AvrdudeError as exc:
+        shutil.rmtree(folder, ignore_errors=True)  # not a backup: no folder that looks like one
+        raise UsageError(f"backup failed, nothing was written: {exc}") from None
+
+
+def _write(avrdude: Avrdude, image: Path, kind: BoardKind, backup: Path) -> dict[str, int]:
+    """Fuses, then image and board record; the bytes avrdude verified of each memory.
+
+    The fuses go first, in a run of their own: writing flash begins with a chip erase, and
+    only a programmed EESAVE keeps the EEPROM through it."""
+    try:
+        verified = avrdude.write_fuses(FUSES)
+        with tempfile.TemporaryDirectory(prefix="hexbench-flash") as tmp:
+            record = Path(tmp) / "record.hex"
+            record.write_text(format_ihex(board_record(kind)), encoding="ascii")
+            return verified | avrdude.write(flash=image, eeprom=record)
+    except AvrdudeError as exc:
+        raise HexbenchError(f"{exc}; the board may be half-written: its previous memories are in "
+                            f"{backup} (docs/firmware.md says how to restore them)") from None

@@ -135,7 +135,8 @@ def test_noise_reasons(raw, reason):
 
 def test_function_table_is_complete_and_consistent():
     assert FunctionCode.MCW == 21 and lookup("mcw").code == 21 and lookup(21).name == "MCW"
-    unused = [6, 7, 8, 9, 10, 17, 18, 19, 26, 27, 51, 52, 53, 54, 55, 63, 64, 69, 70, 75]
+    unused = [6, 7, 8, 9, 10, 17, 18, 19, 26, 27, 51, 52, 53, 54, 55, 69, 70, 75]
+    assert FUNCTIONS[63].name == "Version" and FUNCTIONS[64].name == "SelfTest"  # ours (v2)
     assert all(not FUNCTIONS[c].used for c in unused)
     assert all(FUNCTIONS[c].board.value == "control" for c in (1, 2, 3, 4, 5, 11, 12, 13, 14, 15, 16,
                                                                20, 21, 22, 23, 24))
