@@ -138,15 +138,16 @@ def test_replay_speed(tmp_path):
 
 def test_replay_and_compare_of_a_fleet_run(tmp_path, capsys):
     """A real virtual run (``hexbench run thesis-6``: bring-up, 8 moves) replayed to .rrd, and
-    replayed onto a fresh fleet with ``--compare`` (sim seconds per wall second)."""
+    replayed onto a fresh fleet with ``--compare`` (sim seconds per wall second). A run that
+    fails fails the benchmark: there is nothing to measure."""
     from hexbench.cli import main
     from hexbench.compare import compare
 
     path = tmp_path / "t6.mcap"
-    if main(["run", "thesis-6", "--clock", "virtual", "--record", str(path)]) != 0 or not path.exists():
-        print("\n[bench] hexbench run thesis-6 failed: no fleet-run figures")
-        return
-    capsys.readouterr()
+    code = main(["run", "thesis-6", "--clock", "virtual", "--record", str(path)])
+    run_output = capsys.readouterr()
+    assert code == 0, f"hexbench run thesis-6 exited {code}:\n{run_output.out}{run_output.err}"
+    assert path.exists(), "hexbench run thesis-6 --record wrote no file"
     st = replay(path, rrd=tmp_path / "t6.rrd")
     t0 = time.perf_counter()
     result = compare(path)
