@@ -135,7 +135,7 @@ def test_random_10_module_instances_succeed(seed):
 
 
 # Seeds 7 and 9 of size 30 end with a sealed void for the relays alone: see below.
-@pytest.mark.parametrize("seed", [0, 1, 2, 3, 4, 6, 8, 10, 11, 12, 13, 14, 15])
+@pytest.mark.parametrize("seed", [s for s in range(16) if s not in (7, 9)])
 def test_random_30_module_instances_succeed(seed):
     plan = _check(random_problem(30, seed))
     # Relays keep the walks near the assignment bound on these shapes.
