@@ -185,7 +185,7 @@ def cmd_info(args: argparse.Namespace) -> int:
         print(f"  {k:14} {v if isinstance(v, str) else json.dumps(v)}")
     print(f"channels:   {len(s.channels)}")
     for topic, schema in sorted(s.channels.items()):
-        print(f"  {topic:32} {schema:24} {t.by_topic.get(topic, 0)}")
+        print(f"  {topic:32} {schema:24} {s.messages_on(topic)}")
     return 1 if s.damaged else 0
 
 

@@ -14,6 +14,7 @@ import zlib
 from io import BytesIO
 from dataclasses import dataclass, field
 from pathlib import Path
+from collections import Counter
 from typing import Any, Iterable, Iterator
 
 from mcap.exceptions import McapError
@@ -312,16 +313,24 @@ class Summary:
     undecodable: int = 0
     compression: list[str] = field(default_factory=list)
     channels: dict[str, str] = field(default_factory=dict)  # topic -> schema name
+    #: Messages of the channels the recorder derives for Foxglove, per topic: not bus
+    #: samples, so not in the tally (the recorder's and the reader's tallies agree).
+    derived: Counter[str] = field(default_factory=Counter)
 
     @property
     def duration_s(self) -> float:
         return self.tally.duration_ns / 1e9
 
+    def messages_on(self, topic: str) -> int:
+        """How many messages the recording holds on ``topic`` (a bus topic or a derived one)."""
+        return self.tally.by_topic.get(topic, 0) + self.derived.get(topic, 0)
+
     def to_dict(self) -> dict[str, Any]:
         return {"paths": [str(p) for p in self.paths], "complete": self.complete,
                 "truncated": self.truncated, "damaged": [d.describe() for d in self.damaged], "duration_s": self.duration_s,
                 "undecodable": self.undecodable, "compression": self.compression,
-                "metadata": self.metadata, "channels": self.channels, **self.tally.to_dict()}
+                "metadata": self.metadata, "channels": self.channels,
+                "derived_by_topic": dict(sorted(self.derived.items())), **self.tally.to_dict()}
 
 
 def summary(path: str | Path) -> Summary:
@@ -333,7 +342,10 @@ def summary(path: str | Path) -> Summary:
     compression: set[str] = set()
     for part in paths:
         rf = RecordingFile(part)
-        for s in rf.samples():
+        for s in rf.samples(derived=True):
+            if kind_of(s.topic).foxglove:  # protobuf of the recorder's own: counted apart
+                out.derived[s.topic] += 1
+                continue
             try:
                 obj = s.json()
             except ValueError:

@@ -66,3 +66,23 @@ def test_what_makes_an_event_an_error():
     assert reason({"kind": "rx-noise", "src": "pc", "sim_time_ns": 10_001}, pc) is None  # data lost
     assert reason({"kind": "rx-noise", "src": "pc", "sim_time_ns": 10**12}, PcTimeline(9_000, None)) == "all-answer"
     assert reason({"kind": "timeout", "src": "pc", "sim_time_ns": 1}, pc) is None
+
+
+def test_info_counts_the_channels_the_recorder_derives_for_foxglove(recorded, capsys):
+    """``foxglove/scene`` and ``foxglove/log`` are not bus samples (not in the tally), but
+    their messages are in the file: info counts them as the file holds them."""
+    from collections import Counter
+
+    from recordings.reader import iter_samples
+    from recordings.schemas import LOG_TOPIC, SCENE_TOPIC
+
+    held = Counter(s.topic for s in iter_samples(recorded.path, [SCENE_TOPIC, LOG_TOPIC]))
+    assert held[SCENE_TOPIC] > 0 and held[LOG_TOPIC] == sum(recorded.tally.frames_by_link.values())
+    assert main(["info", str(recorded.path)]) == 0
+    counts = {line.split()[0]: int(line.split()[-1]) for line in capsys.readouterr().out.splitlines()
+              if line.startswith("  foxglove/")}
+    assert counts == held
+    assert main(["info", str(recorded.path), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["derived_by_topic"] == dict(sorted(held.items()))
+    assert info["messages"] == recorded.tally.messages  # the tally stays the bus's samples
