@@ -19,10 +19,51 @@ def test_info_json_counts(recorded, capsys):
     assert info["duration_s"] == recorded.published.end_ns / 1e9
 
 
+def _sections(text: str) -> dict[str, list[str]]:
+    """``hexbench info``'s text by heading: each ``name:`` line's rest, then its indented lines."""
+    out: dict[str, list[str]] = {}
+    for line in text.splitlines():
+        if line.startswith("  "):
+            out[head].append(line.strip())
+        else:
+            head, rest = line.split(":", 1)
+            out.setdefault(head, []).append(rest.strip())
+    return out
+
+
 def test_info_text(recorded, capsys):
+    """Every figure info prints is the one the run published (or the file holds)."""
+    from collections import Counter
+
+    from recordings.reader import iter_samples
+
+    published = recorded.published
     assert main(["info", str(recorded.path)]) == 0
-    out = capsys.readouterr().out
-    assert "frames:" in out and "side" in out and "scenario" in out
+    info = _sections(capsys.readouterr().out)
+    assert info["file"] == [str(recorded.path)]
+    assert info["state"] == ["complete"]
+    assert info["duration"] == [f"{published.end_ns / 1e9:.3f} s  ({recorded.tally.messages} samples, "
+                                "compression zstd)"]
+    noise = Counter(e.link for e in published.frames if e.kind == "noise")
+    faults = sum(1 for topic, r in published.records if topic == "world/event" and r.kind == "fault")
+    frames, *links = info["frames"]
+    assert frames == (f"{len(published.frames)}  noise {sum(noise.values())}  errors {recorded.tally.errors}  "
+                      f"faults {faults}")
+    assert links == [f"{link:12} {n:8}" + (f"  ({noise[link]} noise)" if noise[link] else "")
+                     for link, n in sorted(published.frames_by_link().items())]
+    assert info["errors"] == [", ".join(f"{k} {n}" for k, n in sorted(recorded.tally.errors_by_kind.items()))]
+    world = Counter(r.kind for topic, r in published.records if topic == "world/event")
+    assert info["world"] == [", ".join(f"{k} {n}" for k, n in sorted(world.items()))]
+    metadata = dict(line.split(None, 1) for line in info["metadata"][1:])
+    assert (metadata["scenario"], metadata["seed"], metadata["fleet"]) == ("synthetic", "1", "rectest")
+    # every channel, with its schema and as many messages as the file holds on it
+    held = Counter(s.topic for s in iter_samples(recorded.path, derived=True))
+    count, *channels = info["channels"]
+    assert int(count) == len(held) == len(channels)
+    assert {line.split()[0]: int(line.split()[2]) for line in channels} == held
+    assert {line.split()[0]: line.split()[1] for line in channels if line.startswith(("frame/", "world/pose/"))
+            } == {t: "hexbot.Frame" if t.startswith("frame/") else "hexbot.Pose"
+                  for t in held if t.startswith(("frame/", "world/pose/"))}
 
 
 def test_info_missing_file(tmp_path, capsys):
