@@ -1,11 +1,13 @@
 """The hexbench CLI over the contract (acceptance commands of the foundation issue)."""
 
+import argparse
+import re
 import subprocess
 import sys
 
 import pytest
 
-from hexbench.cli import main
+from hexbench.cli import build_parser, main
 
 
 def run(*args: str) -> subprocess.CompletedProcess:
@@ -13,11 +15,35 @@ def run(*args: str) -> subprocess.CompletedProcess:
                           timeout=60)
 
 
+def _subcommands(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()):
+    """Every subcommand path of ``parser`` (``("firmware", "build")``), nested ones too."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield (*path, name)
+                yield from _subcommands(sub, (*path, name))
+
+
+#: Read from the parser itself, so a new subcommand is covered without touching this file.
+SUBCOMMANDS = list(_subcommands(build_parser()))
+
+
 def test_help_lists_subcommands():
     r = run("--help")
     assert r.returncode == 0
-    for cmd in ("decode", "encode", "scenarios", "monitor"):
-        assert cmd in r.stdout
+    assert len(SUBCOMMANDS) > 20
+    listed = set(re.findall(r"^    (\S+)", r.stdout, re.M))  # one row per subcommand
+    assert listed == {path[0] for path in SUBCOMMANDS}
+
+
+@pytest.mark.parametrize("path", SUBCOMMANDS, ids=" ".join)
+def test_every_subcommand_has_help(path, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main([*path, "--help"])
+    assert exit_.value.code == 0
+    out = capsys.readouterr().out
+    assert out.startswith(f"usage: hexbench {' '.join(path)} ")
+    assert "-h, --help" in out
 
 
 def test_decode_issue_example():
