@@ -22,15 +22,58 @@ def test_plain_output_counts_moves_of_the_plan(capsys):
     assert "\x1b[" not in out  # no terminal codes in a pipe
 
 
+def _rows(drawn: str, columns: int) -> list[str]:
+    """What a terminal ``columns`` wide shows after ``drawn`` (scrollback included): text,
+    carriage return, line feed, auto-wrap, and the few sequences rich uses (cursor up, erase
+    line, colours, cursor on/off); any other sequence fails the test rather than being misread."""
+    rows, row, col = [[]], 0, 0
+    for token in re.findall(r"\x1b\[[0-9;?]*[A-Za-z]|[\r\n]|[^\x1b\r\n]", drawn):
+        if token == "\r":
+            col = 0
+        elif token == "\n":
+            row += 1
+        elif token.startswith("\x1b["):
+            args, op = token[2:-1], token[-1]
+            if op == "A":
+                row = max(0, row - int(args or 1))
+            elif op == "K":  # erase to the end of the line, or (2) all of it
+                assert args in ("", "0", "2"), f"unexpected {token!r}"
+                rows[row] = [] if args == "2" else rows[row][:col]
+            else:
+                assert op == "m" or token in ("\x1b[?25l", "\x1b[?25h"), f"unexpected {token!r}"
+            continue
+        else:
+            if col == columns:  # a character past the margin wraps to the next row
+                row, col = row + 1, 0
+            while len(rows) <= row:
+                rows.append([])
+            line = rows[row]
+            line.extend(" " * (col - len(line)))
+            line[col:col + 1] = [token]
+            col += 1
+        while len(rows) <= row:
+            rows.append([])
+    return ["".join(r).rstrip() for r in rows]
+
+
 def test_a_terminal_gets_a_bar_of_moves():
     """Under a pseudo-terminal the run draws rich's bar (moves n/N, time left) and clears it
     before the summary; the lines still come as they happen."""
-    code, screen = run_in_pty(["run", "thesis-6", "--planner", "complete", "--clock", "virtual"])
+    columns = 120
+    code, screen = run_in_pty(["run", "thesis-6", "--planner", "complete", "--clock", "virtual"],
+                              columns=columns)
     assert code == 0
     text = screen.decode("utf-8", "replace")
     assert re.search(r"moves \(step \d+\).*\d+/\d+", text)  # the bar's text and its n/N column
     assert "\x1b[2K" in text  # lines drawn over the bar, which is redrawn below them
-    assert "goal reached; steps" in text.splitlines()[-1] or "goal reached; steps" in text
+    # What the terminal shows at the end: every planner line, no trace of the bar anywhere
+    # (each drawing was erased before a line took its place, the last before the summary),
+    # and the summary last.
+    rows = [r for r in _rows(text, columns) if r]
+    assert not [r for r in rows if "moves (step" in r or "━" in r]
+    summary = next(n for n, r in enumerate(rows) if r.startswith("complete: goal reached; steps"))
+    assert len(rows) - summary == -(-len("".join(rows[summary:])) // columns)  # itself, wrapped
+    assert re.fullmatch(r"\[ *[\d.]+ s\] step +\d+ moves +(\d+)/\1 .* complete: goal reached", rows[summary - 1])
 
 
 def test_plain_progress_lines_are_rate_limited():
