@@ -118,19 +118,30 @@ def _twin_checks(bus, scenario, fleet, bridges: list, hil_port: str | None) -> l
     """A live differential for every real module alone on its port: its answers on the
     centre channel against its twin's (several boards behind one transceiver cannot be told
     apart there)."""
-    from hil.bridge import DebugBridge
+    from hil.bridge import FAULT, RECOVERED, DebugBridge
     from module_sim.twin import TwinCheck
 
     def say(d) -> None:
         print(f"{'twin view' if d.explained else 'twin diverged'}: {d.describe(bus.clock.started_ns)}",
               flush=True)
 
+    def follow(check: TwinCheck, bridge) -> TwinCheck:
+        """The check hears when the board's port goes and comes back (nobody hears the board
+        meanwhile)."""
+        def on_event(key: str, d: dict) -> None:
+            if d.get("kind") == FAULT:
+                check.line_down()
+            elif d.get("kind") == RECOVERED:
+                check.line_up(d["sim_time_ns"])
+        bus.subscribe_json(bus.keys.event(bridge.name), on_event)
+        return check
+
     real = [m for m in scenario.modules if m.kind == "real"]
     checks = []
     for bridge in bridges:
         if isinstance(bridge, DebugBridge):  # one board's debug lines and actuator reports
-            checks.append(TwinCheck(bus, fleet.twins[bridge.module_id], bridge.src, link="debug",
-                                    on_difference=say))
+            checks.append(follow(TwinCheck(bus, fleet.twins[bridge.module_id], bridge.src,
+                                           link="debug", on_difference=say), bridge))
             continue
         on_port = [m for m in real if (hil_port or m.port) == bridge.url]
         if len(on_port) != 1:
@@ -139,7 +150,8 @@ def _twin_checks(bus, scenario, fleet, bridges: list, hil_port: str | None) -> l
                       "cannot be told apart there, so they are not compared with their twins",
                       flush=True)
             continue
-        checks.append(TwinCheck(bus, fleet.twins[on_port[0].id], bridge.src, on_difference=say))
+        checks.append(follow(TwinCheck(bus, fleet.twins[on_port[0].id], bridge.src,
+                                       on_difference=say), bridge))
     return checks
 
 

@@ -140,7 +140,9 @@ class SerialBridge:
                    message=f"{len(data)} byte(s) for {self.url} not sent: {reason}")
 
     def event(self, kind: str, **fields: Any) -> None:
-        self.bus.event(self.name, kind, port=self.url, **fields)
+        """An event on ``event/<name>``; ``link`` says whose port it is (a centre port carries
+        the modules' answers to the PC, a debug port one board's UART1)."""
+        self.bus.event(self.name, kind, port=self.url, link=self.link.value, **fields)
 
 
 class CentreBridge(SerialBridge):

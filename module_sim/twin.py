@@ -18,6 +18,10 @@ reports (through a :class:`hil.bridge.DebugBridge`), against the twin's, in orde
   says so;
 * ``twin-diverged`` otherwise, once per module (later differences are counted): the board
   and the program it should run disagree. The run goes on with the board's answer.
+
+While the board's port is down (a cable pulled, an adapter replugged: :meth:`TwinCheck.line_down`
+and :meth:`TwinCheck.line_up`), what the board sends is heard by nobody: the twin's answers
+of that time are not compared (they are counted), so the two stay in step once it is back.
 """
 
 from __future__ import annotations
@@ -73,8 +77,11 @@ class TwinCheck:
     on_difference: Callable[[Difference], None] | None = None
     compared: int = 0
     differences: list[Difference] = field(default_factory=list)
+    unheard: int = 0  # the twin's answers while the board's port was down: not compared
     _expected: deque = field(default_factory=deque)  # (envelope, side bytes heard by then)
     _received: deque = field(default_factory=deque)
+    _down: bool = False
+    _up_ns: int = 0  # when the board's port came back
 
     def __post_init__(self) -> None:
         keys = self.bus.keys
@@ -98,10 +105,28 @@ class TwinCheck:
     def diverged(self) -> list[Difference]:
         return [d for d in self.differences if not d.explained]
 
+    def line_down(self) -> None:
+        """The board's port went away: the twin's answers still waiting for the board's were
+        lost with it, and so are those to come until :meth:`line_up`."""
+        self._down = True
+        self.unheard += len(self._expected)
+        self._expected.clear()
+
+    def line_up(self, at_ns: int) -> None:
+        """The board's port is back since ``at_ns``: an answer that began before was not heard
+        whole (the bridge's framer made noise of its tail)."""
+        self._down = False
+        self._up_ns = at_ns
+
     def _on_twin(self, env: Envelope) -> None:
-        if env.kind not in _SKIPPED:
-            self._expected.append((env, self.twin.side_bytes_heard))
-            self._compare()
+        if env.kind in _SKIPPED:
+            return
+        began = env.first_byte_ns if env.first_byte_ns is not None else env.sim_time_ns
+        if not self._received and (self._down or began < self._up_ns):
+            self.unheard += 1  # the board's copy went out while nobody listened
+            return
+        self._expected.append((env, self.twin.side_bytes_heard))
+        self._compare()
 
     def _on_board(self, env: Envelope) -> None:
         if env.kind not in _SKIPPED:
@@ -140,4 +165,6 @@ class TwinCheck:
         seen = len(self.differences) - len(bad)
         if seen:
             text += f"; {seen} where the twin heard side light the board could not (its view used)"
+        if self.unheard:
+            text += f"; {self.unheard} of the twin's not compared: the board's port was down"
         return text

@@ -24,7 +24,7 @@ from . import planners
 from .planners import thesis
 from .bringup import BringUp, BringUpError, Fleetview
 from .endpoint import PcEndpoint
-from .executor import THESIS_TIMING, Executor, GroundTruth, MoveFailed
+from .executor import THESIS_TIMING, Executor, GroundTruth, MoveFailed, PortWatch
 from .planners.plan import Plan, PlanError, Problem, validate
 from .planners.rules import Move
 from .script import ScriptError, run_script
@@ -70,6 +70,9 @@ class PlannerService:
         self.pc = PcEndpoint(bus, baud=scenario.ir_baud)
         self.truth = GroundTruth(bus)
         self.bringup = BringUp(self.pc, scenario, say=say)
+        # real modules answer through serial bridges, whose ports may go and come back
+        real = any(m.kind != "virtual" for m in scenario.modules)
+        self.ports = PortWatch(bus) if real else None
         self.timing = timing
         self.view: Fleetview | None = None
         self._planned = 0  # moves in the plan, once there is one
@@ -169,7 +172,7 @@ class PlannerService:
         self.say(f"plan: {plan.summary()}")
         self._planned, self._moves_began = plan.moves, time.monotonic()
         executor = Executor(self.pc, self.view, self.bringup, self.truth, timing=self.timing,
-                            say=self.say)
+                            say=self.say, ports=self.ports)
         for n, step in enumerate(plan.steps, 1):
             self._state(n, step)
             for mv in step:
