@@ -35,7 +35,7 @@ def _talk_to_m1(pc: PcEndpoint) -> None:
 
 
 def test_a_fleet_survives_bad_samples_and_says_so():
-    port = 19000 + os.getpid() % 1000
+    port = free_port()
     fleet = f"bad{os.getpid()}"
     proc = wall_fleet("pair", port, fleet)
     clock = WallClock()

@@ -4,7 +4,6 @@ the test with openssl; everything listens on loopback only."""
 
 from __future__ import annotations
 
-import os
 import shutil
 import subprocess
 
@@ -98,10 +97,9 @@ def test_an_access_control_list_keeps_a_denied_put_from_the_fleet(tmp_path):
                    key_exprs: ["hexbot/acl/world/inject"] } ],
         subjects: [ { id: "loopback", interfaces: ["lo"] } ],
         policies: [ { rules: ["no-inject"], subjects: ["loopback"] } ] } }""")
-    port = 21000 + os.getpid() % 1000
     results = {}
     for name, config in (("open", None), ("acl", str(acl))):
-        fleet = "acl"
+        fleet, port = "acl", free_port()
         server = Bus(WallClock(), fleet, options=SessionOptions(listen=[f"tcp/127.0.0.1:{port}"],
                                                                 config=config))
         got: list[str] = []
@@ -117,7 +115,6 @@ def test_an_access_control_list_keeps_a_denied_put_from_the_fleet(tmp_path):
         finally:
             client.close()
             server.close()
-        port += 1
     assert results["open"] == ["inject", "sync"]  # the check has teeth
     assert results["acl"] == ["sync"]
 
@@ -133,7 +130,7 @@ def test_which_listeners_are_warned_about():
 def test_a_bad_config_file_and_an_open_listener_are_said_plainly(tmp_path, capsys):
     with pytest.raises(UsageError, match="--zenoh-config .*nope.json5: No such file"):
         Bus(WallClock(), "x", options=SessionOptions(config=str(tmp_path / "nope.json5")))
-    assert main(["monitor", "--listen", f"tcp/localhost:{22000 + os.getpid() % 1000}",
+    assert main(["monitor", "--listen", f"tcp/localhost:{free_port()}",
                  "--seconds", "0.1"]) == 0
     assert "warning" not in capsys.readouterr().err  # loopback: nobody else reaches it
     assert main(["monitor", "--zenoh-config", str(tmp_path / "nope.json5"), "--seconds", "0.1"]) == 2

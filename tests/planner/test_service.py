@@ -14,6 +14,7 @@ from bus.lattice import Direction, Side
 from bus.scenario import load
 from planner_svc import planners
 from planner_svc.script import ScriptError, parse_script
+from processes import free_port
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -108,7 +109,7 @@ def test_planner_in_another_process_reaches_the_goal(tmp_path):
     planner thesis-6 --clock wall`` in another, over zenoh on loopback."""
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     fleet_name = f"mp{os.getpid()}"
-    port = 17000 + os.getpid() % 1000
+    port = free_port()
     fleet = subprocess.Popen([sys.executable, "-m", "hexbench", "fleet", "thesis-6", "--clock", "wall",
                               "--fleet", fleet_name, "--listen", f"tcp/127.0.0.1:{port}"],
                              cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,

@@ -11,6 +11,7 @@ import sys
 from collections import Counter
 
 from hexbench.cli import main
+from processes import free_port
 from recordings.reader import iter_samples, read_frames
 
 
@@ -27,7 +28,7 @@ def _remote_recorder(port: int, fleet: str, out) -> subprocess.Popen:
 
 
 def test_a_recorder_in_another_process_gets_every_sample(tmp_path, capsys):
-    port = 18000 + os.getpid() % 1000
+    port = free_port()
     fleet = f"remote{os.getpid()}"
     remote = tmp_path / "remote.mcap"
     rec = _remote_recorder(port, fleet, remote)
@@ -57,7 +58,7 @@ def test_a_burst_of_50_000_frames_reaches_a_remote_recorder_whole(tmp_path):
     from bus import Frame, Kind, Link, SessionOptions, WallClock
     from bus.transport import Bus
 
-    port = 18500 + os.getpid() % 400
+    port = free_port()
     fleet = f"burst{os.getpid()}"
     remote = tmp_path / "burst.mcap"
     rec = _remote_recorder(port, fleet, remote)
@@ -91,7 +92,7 @@ def test_a_recorder_far_behind_still_gets_the_tail_when_the_publisher_closes(tmp
     from bus import Frame, Kind, Link, SessionOptions, WallClock
     from bus.transport import Bus
 
-    port = 18900 + os.getpid() % 400
+    port = free_port()
     fleet = f"behind{os.getpid()}"
     remote = tmp_path / "behind.mcap"
     rec = _remote_recorder(port, fleet, remote)
