@@ -15,8 +15,11 @@ is found again under the same name.
 from __future__ import annotations
 
 import errno
+import fcntl
 import os
 import select
+import struct
+import termios
 import threading
 import tty
 from pathlib import Path
@@ -83,19 +86,31 @@ class Pty:
     # -- the pyserial-like part -----------------------------------------------------------------
     @property
     def in_waiting(self) -> int:
-        return 0  # unknown: read() returns whatever is there
+        """Bytes the other end wrote that :meth:`read` has not taken yet (0 while hung up)."""
+        if self.closed:
+            raise PtyClosed("pty closed")
+        fd = self._master
+        if fd is None:
+            return 0
+        try:
+            return struct.unpack("i", fcntl.ioctl(fd, termios.FIONREAD, b"\0\0\0\0"))[0]
+        except OSError:  # hung up meanwhile
+            return 0
 
     def read(self, size: int = 1) -> bytes:
-        """Up to ``size`` bytes; waits at most ``timeout`` s; ``b""`` while hung up."""
+        """Up to ``size`` bytes, as soon as there are any; waits at most ``timeout`` s;
+        ``b""`` while hung up."""
         if self.closed:
             raise PtyClosed("pty closed")
         fd = self._master
         if fd is None:
             threading.Event().wait(self.timeout)
             return b""
+        if size <= 0:
+            return b""
         try:
             ready, _, _ = select.select([fd], [], [], self.timeout)
-            return os.read(fd, max(size, 256)) if ready else b""
+            return os.read(fd, size) if ready else b""
         except (BlockingIOError, ValueError):
             return b""
         except OSError as exc:
