@@ -12,10 +12,10 @@ from typing import Sequence
 
 from bus.errors import HexbenchError, UsageError
 
-from . import firmware, fleet, hil, plan, programmer, record, tools
+from . import boards, firmware, fleet, hil, plan, programmer, record, tools
 
 #: Modules whose ``register`` adds subcommands, in help order.
-COMMANDS = (tools, fleet, plan, record, hil, firmware, programmer)
+COMMANDS = (tools, fleet, plan, record, hil, boards, firmware, programmer)
 
 
 def _version() -> str:

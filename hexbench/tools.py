@@ -127,6 +127,8 @@ def cmd_send(args: argparse.Namespace) -> int:
     from bus.functions import ACK_TIMEOUT, ACK_UNKNOWN
     from planner_svc.endpoint import ExpectTimeout, PcEndpoint
 
+    from .serial_pc import ask
+
     frame = command_frame(args.function, args.args)
     if args.clock != "wall":
         raise UsageError("send talks to a fleet in another process: only --clock wall")
@@ -151,23 +153,15 @@ def cmd_send(args: argparse.Namespace) -> int:
                            lambda k, d: collided.update(d.get("sources", []))
                            if isinstance(d, dict) and d.get("kind") == "collision"
                            and d.get("receiver") == pc.name else None)
-        mark = len(pc.received)
-        pc.send_raw(frame)
         print(f"sent {frame.hex()}  ({command_describe(frame)})", flush=True)
-        try:
-            ack = pc.expect("ack", since=mark, timeout_s=args.timeout)
-        except ExpectTimeout:
-            pc.flush()
-            for r in pc.received[mark:]:
-                print(f"  {r.frame.describe()}")
+        answers, ack = ask(pc, frame, timeout_s=args.timeout)
+        for r in answers:
+            print(f"  {r.frame.describe()}")
+        if ack is None:
             why = (f": the answers of {', '.join(sorted(collided))} collided at the PC's transceiver "
                    "(give --select ID)" if len(collided) > 1 else "")
             print(f"hexbench send: no ACK within {args.timeout:g} s{why}", file=sys.stderr)
             return SEND_TIMEOUT
-        for r in pc.received[mark:]:
-            print(f"  {r.frame.describe()}")
-            if r is ack:
-                break
         byte = ack.frame.view["byte"]
         return SEND_UNKNOWN if byte == ACK_UNKNOWN else SEND_TIMEOUT if byte == ACK_TIMEOUT else SEND_ACK
     finally:
