@@ -1,9 +1,10 @@
 """Fixtures for the hardware-in-the-loop tests: stand-ins behind real pseudo-terminals.
 
 Everything runs on the wall clock at 300 baud (33 ms a byte), so boots (~8 s) and the
-serial conformance runs (~10-16 s a shard) overlap: the first test that needs a stand-in
-starts all of them, and the conformance shards run as pytest subprocesses in the
-background while the bridge tests run.
+serial conformance runs overlap: the first test that needs a stand-in starts all of them,
+and the conformance shards run as pytest subprocesses in the background while the bridge
+tests run. The v2 shards' stand-ins have their debug UART1 on a second pty, given to the
+suite with ``--hexbench-debug``, and each shard writes ``--junitxml``.
 """
 
 from __future__ import annotations
@@ -39,15 +40,18 @@ class Shard:
     profile: str
     select: str
     standin: StandIn
+    junit: Path  # the run's --junitxml: per test, the properties the plugin records
     done: threading.Event = field(default_factory=threading.Event)
     returncode: int | None = None
     output: str = ""
     proc: subprocess.Popen | None = None
 
     def command(self) -> list[str]:
+        debug = [f"--hexbench-debug=serial:{self.standin.debug_path}"] if self.standin.debug_path else []
         return [sys.executable, "-m", "pytest", "-q", "-rs", "-p", "no:cacheprovider",
                 "--pyargs", "hexbench.conformance", "-k", self.select,
-                f"--hexbench-target=serial:{self.standin.path}", f"--hexbench-profile={self.profile}"]
+                f"--hexbench-target=serial:{self.standin.path}", f"--hexbench-profile={self.profile}",
+                *debug, f"--junitxml={self.junit}"]
 
     def run(self) -> None:
         """Wait for the module to boot, then run the suite against it (background thread)."""
@@ -76,9 +80,12 @@ class HilRig:
 
 
 def pytest_generate_tests(metafunc) -> None:
+    ids = [f"{p}-{'rest' if s.startswith('not') else 'unknown+garbage'}" for p, s in SHARDS]
     if "shard_index" in metafunc.fixturenames:
-        ids = [f"{p}-{'rest' if s.startswith('not') else 'unknown+garbage'}" for p, s in SHARDS]
         metafunc.parametrize("shard_index", range(len(SHARDS)), ids=ids)
+    if "v2_shard_index" in metafunc.fixturenames:  # the shards whose stand-in reports actuators
+        v2 = [n for n, (profile, _) in enumerate(SHARDS) if profile == "v2"]
+        metafunc.parametrize("v2_shard_index", v2, ids=[ids[n] for n in v2])
 
 
 @pytest.fixture(scope="session")
@@ -91,9 +98,11 @@ def hil_rig(tmp_path_factory) -> HilRig:
         started.append(bridge_standin)
         shards = []
         for n, (profile, select) in enumerate(SHARDS):
-            s = StandIn.on_pty(d / f"ttyCONF{n}", profile=profile).start()
+            # a v2 board's debug UART1 carries its actuator reports: what each test left on
+            debug = d / f"ttyCONF{n}d" if profile == "v2" else None
+            s = StandIn.on_pty(d / f"ttyCONF{n}", debug_link=debug, profile=profile).start()
             started.append(s)
-            shards.append(Shard(profile, select, s))
+            shards.append(Shard(profile, select, s, d / f"conformance{n}.xml"))
         threads = [threading.Thread(target=shard.run, daemon=True, name=f"conformance-{shard.profile}")
                    for shard in shards]
         for t in threads:
