@@ -12,16 +12,21 @@
 #error "F_CPU must match bus/ (hexbot_gen.h)"
 #endif
 
+/* Timer0 in CTC mode clears itself on the compare match: the tick grid is the hardware's,
+ * whatever the interrupt latency (a TCNT0 reload in the ISR lost a count whenever the ISR
+ * came 64 cycles late). */
 static volatile uint16_t ticks;
 
-ISR(TIMER0_OVF_vect)
-{
-    TCNT0 = TIMER0_RELOAD;
-    ticks++;
-}
+ISR(TIMER0_COMP_vect) { ticks++; }
 
-/* --- background transmit queue (the v2 actuator reports) --- */
+/* --- background transmit queue (the v2 actuator reports) ---
+ * One ring per UART: the program writes head, the UDRE interrupt tail (single-byte stores,
+ * atomic on the AVR), so the program never turns interrupts off for it. */
 #define QUEUE 32
+#define QMASK (QUEUE - 1)
+#if QUEUE & QMASK
+#error "QUEUE must be a power of two"
+#endif
 static volatile uint8_t queue[2][QUEUE], head[2], tail[2];
 
 static void udre_enable(uint8_t uart, uint8_t on)
@@ -32,18 +37,25 @@ static void udre_enable(uint8_t uart, uint8_t on)
         UCSR1B = on ? (UCSR1B | _BV(UDRIE1)) : (UCSR1B & ~_BV(UDRIE1));
 }
 
+/* The UDRE interrupt: itself off and the others on while it works, so the tick waits for
+ * no more than its prologue or epilogue (a whole UDRE handler, ~60 cycles, came close to
+ * one Timer0 count); the program cannot run before it returns, so the ring is its own. */
 static void drain(uint8_t uart)
 {
-    if (head[uart] == tail[uart]) {
-        udre_enable(uart, 0);
-        return;
+    udre_enable(uart, 0);
+    sei();
+    uint8_t t = tail[uart];
+    if (head[uart] != t) {
+        uint8_t b = queue[uart][t];
+        tail[uart] = t = (uint8_t)((t + 1) & QMASK);
+        if (uart == UART0)
+            UDR0 = b;
+        else
+            UDR1 = b;
     }
-    uint8_t b = queue[uart][tail[uart]];
-    tail[uart] = (uint8_t)((tail[uart] + 1) % QUEUE);
-    if (uart == UART0)
-        UDR0 = b;
-    else
-        UDR1 = b;
+    cli();
+    if (head[uart] != t)
+        udre_enable(uart, 1);
 }
 
 ISR(USART0_UDRE_vect) { drain(UART0); }
@@ -51,20 +63,16 @@ ISR(USART1_UDRE_vect) { drain(UART1); }
 
 uint8_t board_tx_queue(uint8_t uart, const uint8_t *data, uint8_t n)
 {
-    uint8_t ok = 1;
-    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
-        uint8_t used = (uint8_t)((head[uart] - tail[uart] + QUEUE) % QUEUE);
-        if (used + n >= QUEUE) {
-            ok = 0;
-        } else {
-            for (uint8_t k = 0; k < n; k++) {
-                queue[uart][head[uart]] = data[k];
-                head[uart] = (uint8_t)((head[uart] + 1) % QUEUE);
-            }
-            udre_enable(uart, 1);
-        }
+    uint8_t h = head[uart];
+    if ((uint8_t)((h - tail[uart]) & QMASK) + n >= QUEUE)
+        return 0; /* a tail that moves on meanwhile only frees more room */
+    for (uint8_t k = 0; k < n; k++) {
+        queue[uart][h] = data[k];
+        h = (uint8_t)((h + 1) & QMASK);
     }
-    return ok;
+    head[uart] = h; /* the bytes are in before the interrupt can see them */
+    udre_enable(uart, 1);
+    return 1;
 }
 
 /* --- ports --- */
@@ -137,19 +145,18 @@ void board_init(const uint8_t outputs[5], const uint8_t pullups[5])
 #endif
     UCSR1C = _BV(URSEL1) | _BV(UCSZ11) | _BV(UCSZ10);
     UCSR1B = _BV(RXEN1) | _BV(TXEN1);
-    /* Timer0 (started at power-up): prescaler 64, reloaded so it overflows every 156
-     * counts = 9.984 ms */
-    TIMSK |= _BV(TOIE0);
+    /* Timer0 runs since power-up (timer_at_power_up); its tick from now on */
+    TIMSK |= _BV(OCIE0);
     sei();
 }
 
 /* Start Timer0 before the C runtime clears .bss and copies .data (about a millisecond at
- * 1 MHz), so its tick grid starts at power-up as in the model; its interrupt is enabled
- * in board_init. */
+ * 1 MHz), so its tick grid starts at power-up as in the model: CTC, prescaler 64, counts
+ * 0..TIMER0_TOP = 156 counts = 9.984 ms. Its interrupt is enabled in board_init. */
 __attribute__((naked, used, section(".init3"))) static void timer_at_power_up(void)
 {
-    TCNT0 = TIMER0_RELOAD;
-    TCCR0 = _BV(CS01) | _BV(CS00);
+    OCR0 = TIMER0_TOP;
+    TCCR0 = _BV(WGM01) | _BV(CS01) | _BV(CS00);
 }
 
 int main(void)

@@ -42,11 +42,11 @@ def test_a_changed_constant_is_drift(monkeypatch, tmp_path) -> None:
 
 def test_header_values_are_the_spec() -> None:
     text = HEADER.read_text()
-    for line in ("#define UART0_UBRR 12", "#define IR_UBRR 207", "#define TIMER0_RELOAD 0x64",
+    for line in ("#define UART0_UBRR 12", "#define IR_UBRR 207", "#define TIMER0_TOP 155",
                  "#define FC_CW 67", "#define IR_SEL_BITS {0x02,"):
         assert line in text
     # 156 counts of 64 us: the 9.984 ms tick of bus.timing
-    assert (256 - cheader.TIMER0_RELOAD) * cheader.TIMER0_PRESCALER * 1000 == timing.TICK_NS
+    assert (cheader.TIMER0_TOP + 1) * cheader.TIMER0_PRESCALER * 1000 == timing.TICK_NS
 
 
 def test_c_sources_take_codes_from_the_header() -> None:
