@@ -1,8 +1,9 @@
 /* ATmega162 for libsimavr 1.6: the part's memory map from avr-libc's iom162.h, simavr's
- * ports, UARTs and EEPROM, plus two things simavr cannot do for this part: the shared
- * UBRRH/UCSRC register, and a Timer0 that keeps the prescaler grid when the program
- * reloads TCNT0 (simavr 1.6 re-times a TCNT write from the write instant and scales it
- * by TOP instead of TOP+1, which would make the 9.984 ms tick ~20 cycles off). */
+ * ports, UART receivers and EEPROM, plus what simavr cannot do for this part: the shared
+ * UBRRH/UCSRC register, a double-buffered transmitter (UDR and the shift register), and
+ * Timer0 in normal and CTC mode on the prescaler's grid (simavr 1.6 re-times a TCNT write
+ * from the write instant and scales it by TOP instead of TOP+1, which would make the
+ * 9.984 ms tick ~20 cycles off). */
 #include <stddef.h>
 #include <stdlib.h>
 #include <string.h>
@@ -30,6 +31,8 @@
 _Static_assert(PORTA == M162_PORTA && PORTB == M162_PORTB && PORTC == M162_PORTC &&
 	       PORTD == M162_PORTD && PORTE == M162_PORTE, "port addresses");
 _Static_assert(UDR0 == M162_UDR0 && UDR1 == M162_UDR1, "UDR addresses");
+_Static_assert(TIMER0_COMP_vect == M162_TIMER0_COMP_VECT &&
+	       TIMER0_OVF_vect == M162_TIMER0_OVF_VECT, "Timer0 vectors");
 _Static_assert(UBRR0H == UCSR0C && UBRR1H == UCSR1C, "shared UBRRH/UCSRC");
 _Static_assert(_VECTORS_SIZE == 28 * 4, "28 vectors of 4 bytes");
 
@@ -257,8 +260,8 @@ static uint8_t usart_shared_read(avr_t *avr, avr_io_addr_t addr, void *param)
  * frame after every write, so a program that waits for UDRE would fall one frame behind
  * the chip on every burst. Here a byte written while the shift register is idle starts at
  * once and UDR is free again at once; one written while it is busy waits in UDR (UDRE low)
- * until the shift register takes it. UART_IRQ_OUTPUT is raised when a byte's start bit
- * begins. */
+ * until the shift register takes it, and a write while UDRE is low is lost. UART_IRQ_OUTPUT
+ * is raised when a byte's start bit begins. */
 static void usart_tx_start(avr_t *avr, m162_usart_t *u, uint8_t v, avr_cycle_count_t now)
 {
 	u->shift_end = now + u->frame;
@@ -283,8 +286,8 @@ static void usart_udr_write(avr_t *avr, avr_io_addr_t addr, uint8_t v, void *par
 	m162_usart_t *u = param;
 	avr_uart_t *p = u->uart;
 	(void)addr;
-	if (!avr_regbit_get(avr, p->txen))
-		return;
+	if (!avr_regbit_get(avr, p->txen) || u->pending)
+		return;	/* with UDRE low the chip ignores the write (datasheet, UDRn) */
 	if (avr_regbit_get(avr, p->udrc.raised)) {
 		avr_clear_interrupt(avr, &p->udrc);
 		avr_regbit_clear(avr, p->udrc.raised);	/* UDRE is sticky: clear the flag too */
@@ -293,7 +296,7 @@ static void usart_udr_write(avr_t *avr, avr_io_addr_t addr, uint8_t v, void *par
 		usart_tx_start(avr, u, v, avr->cycle);
 		avr_cycle_timer_register(avr, u->frame, usart_tx_timer, u);
 	} else {
-		u->udr = v;	/* a write over a full UDR replaces it, as on the chip */
+		u->udr = v;
 		u->pending = 1;
 	}
 }

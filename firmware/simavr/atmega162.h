@@ -18,6 +18,8 @@ enum {
 	M162_PORTA = 0x3B, M162_PORTB = 0x38, M162_PORTC = 0x35,
 	M162_PORTD = 0x32, M162_PORTE = 0x27,
 	M162_UDR0 = 0x2C, M162_UDR1 = 0x23,
+	/* vector numbers (avr-libc's, RESET = 0; the datasheet counts from 1) */
+	M162_TIMER0_COMP_VECT = 16, M162_TIMER0_OVF_VECT = 17,
 };
 
 /* A new, initialised and reset ATmega162 at 1 MHz.  Its sleep callback does nothing:

@@ -8,13 +8,17 @@
 
 #include "../include/hexbot_gen.h"
 
-/* Control board: --dip N is what this port's pins read (all eight bits). */
+/* Control board: the DIP switches are all eight pins of this port; --dip N closes the
+ * switches of N's one bits, and a closed switch reads PINS_DIP_ACTIVE_LOW ? 0 : 1. */
 #define PINS_DIP_PORT DIP_PORT
+#define PINS_DIP_ACTIVE_LOW DIP_ACTIVE_LOW
 
 /* Comm board: the optical switch of side k (1..6) is bit PINS_SWITCH_MASKS[k] of port
- * PINS_SWITCH_PORTS[k], high when a neighbour is there (--switches bit k-1). */
+ * PINS_SWITCH_PORTS[k]; a neighbour there (--switches bit k-1) closes it, and a closed
+ * switch reads PINS_SWITCH_ACTIVE_LOW ? 0 : 1 (an open one the other level: the pull-up). */
 static const uint8_t PINS_SWITCH_PORTS[7] = OPTICAL_SWITCH_PORTS;
 static const uint8_t PINS_SWITCH_MASKS[7] = OPTICAL_SWITCH_MASKS;
+#define PINS_SWITCH_ACTIVE_LOW OPTICAL_SWITCH_ACTIVE_LOW
 
 /* Comm board: the IR multiplexer in front of USART1, selected by PORTA bits; the centre
  * transceiver (the one a PC above the module sees) is on channel IR_CENTRE_CHANNEL. */

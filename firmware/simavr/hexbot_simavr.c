@@ -31,6 +31,7 @@
 #include "sim_cycle_timers.h"
 #include "sim_interrupts.h"
 #include "sim_regbit.h"
+#include "avr_eeprom.h"
 #include "avr_ioport.h"
 #include "avr_uart.h"
 #include "atmega162.h"
@@ -54,6 +55,7 @@ typedef struct board {
 	avr_t *avr;
 	int halted;
 	uint8_t port[5];	/* last logged PORTx values */
+	uint8_t ddr[5];		/* ... and DDRx (--trace ddr) */
 } board_t;
 
 enum { F_WAIT, F_SHIFT, F_HELD };
@@ -89,11 +91,14 @@ typedef struct event {
 	char text[56];
 } event_t;
 
+enum { TRACE_DDR = 1, TRACE_TICK = 2 };
+
 static struct {
 	const char *elf[2], *ir_link, *debug_link, *ir_script, *debug_script, *log;
-	int dip, switches, fast, verbose, hold;
+	int dip, switches, fast, verbose, hold, trace;
+	int record[2];		/* the board kind each EEPROM names, 0 = none (erased) */
 	double seconds;
-} opt;
+} opt = { .record = { BOARD_KIND_COMM, BOARD_KIND_CONTROL } };
 
 static board_t boards[2];
 static line_t lines[2][2];		/* [board][usart] */
@@ -489,19 +494,43 @@ static void on_tx(avr_irq_t *irq, uint32_t value, void *param)
 	}
 }
 
+/* A PORTx (or DDRx) register of board param / 8, port param % 8, written with value: logged
+ * if it changed; 1 if it did. */
+static int log_register(const char *what, int ddr, void *param, uint32_t value)
+{
+	int id = (int)(intptr_t)param / 8, port = (int)(intptr_t)param % 8;
+	board_t *b = &boards[id];
+	uint8_t *last = ddr ? &b->ddr[port] : &b->port[port];
+	if (*last == (uint8_t)value)
+		return 0;
+	*last = (uint8_t)value;
+	event(b->avr->cycle, "%s %s %c %02x", what, BOARD[id], 'A' + port, (unsigned)value & 0xFF);
+	return 1;
+}
+
 static void on_port(avr_irq_t *irq, uint32_t value, void *param)
 {
 	(void)irq;
-	int id = (int)(intptr_t)param / 8, port = (int)(intptr_t)param % 8;
-	board_t *b = &boards[id];
-	if (b->port[port] == (uint8_t)value)
-		return;
-	b->port[port] = (uint8_t)value;
-	event(b->avr->cycle, "port %s %c %02x", BOARD[id], 'A' + port, (unsigned)value & 0xFF);
-	if (id == COMM && port == PINS_IR_MUX_PORT && ir_channel() != ir_mux_last) {
+	if (log_register("port", 0, param, value) &&
+	    (intptr_t)param == COMM * 8 + PINS_IR_MUX_PORT && ir_channel() != ir_mux_last) {
 		ir_mux_last = ir_channel();
-		ir_mux_at = b->avr->cycle;
+		ir_mux_at = boards[COMM].avr->cycle;
 	}
+}
+
+static void on_ddr(avr_irq_t *irq, uint32_t value, void *param)
+{
+	(void)irq;
+	log_register("ddr", 1, param, value);
+}
+
+/* A Timer0 interrupt (compare match or overflow) is entered. */
+static void on_timer0(avr_irq_t *irq, uint32_t value, void *param)
+{
+	(void)irq;
+	int id = (int)(intptr_t)param;
+	if (value)
+		event(boards[id].avr->cycle, "tick %s", BOARD[id]);
 }
 
 static avr_cycle_count_t heartbeat(avr_t *avr, avr_cycle_count_t when, void *param)
@@ -539,6 +568,21 @@ static void load_elf(board_t *b, const char *path)
 	b->avr->frequency = F_CPU;	/* the boards' crystal, whatever the ELF says */
 }
 
+/* The board-kind record (bus/chip.py) at the start of the EEPROM, as `hexbench firmware
+ * flash --board` writes it; kind 0 leaves those bytes erased. */
+static void set_board_record(avr_t *avr, int kind)
+{
+	uint8_t rec[4] = { 0xFF, 0xFF, 0xFF, 0xFF };
+	if (kind) {
+		rec[0] = BOARD_RECORD_MAGIC0;
+		rec[1] = BOARD_RECORD_MAGIC1;
+		rec[2] = (uint8_t)kind;
+		rec[3] = (uint8_t)(kind ^ 0xFF);
+	}
+	avr_eeprom_desc_t d = { .ee = rec, .offset = BOARD_RECORD_ADDR, .size = sizeof rec };
+	avr_ioctl(avr, AVR_IOCTL_EEPROM_SET, &d);
+}
+
 static void set_inputs(avr_t *avr, int port, uint8_t mask, uint8_t value)
 {
 	char name = 'A' + port;
@@ -559,6 +603,7 @@ static void board_setup(int id)
 		die(1, "out of memory");
 	load_elf(b, opt.elf[id]);
 	avr_t *avr = b->avr;
+	set_board_record(avr, opt.record[id]);
 	for (int n = 0; n < 2; n++) {
 		line_t *l = &lines[id][n];
 		l->rx = b;
@@ -569,19 +614,34 @@ static void board_setup(int id)
 					on_tx, (void *)(intptr_t)(id << 1 | n));
 		atmega162_after_read(avr, n ? M162_UDR1 : M162_UDR0, on_udr_read, l);
 	}
-	for (int p = 0; p < 5; p++)
+	for (int p = 0; p < 5; p++) {
 		avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('A' + p),
 						      IOPORT_IRQ_REG_PORT),
 					on_port, (void *)(intptr_t)(id * 8 + p));
+		if (opt.trace & TRACE_DDR)
+			avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('A' + p),
+							      IOPORT_IRQ_DIRECTION_ALL),
+						on_ddr, (void *)(intptr_t)(id * 8 + p));
+	}
+	if (opt.trace & TRACE_TICK) {
+		static const uint8_t vectors[2] = { M162_TIMER0_COMP_VECT, M162_TIMER0_OVF_VECT };
+		for (int i = 0; i < 2; i++)
+			avr_irq_register_notify(avr_get_interrupt_irq(avr, vectors[i]) +
+						AVR_INT_IRQ_RUNNING, on_timer0, (void *)(intptr_t)id);
+	}
 	avr_cycle_timer_register(avr, HEARTBEAT, heartbeat, NULL);
 
+	/* a closed switch pulls its pin to the active level; an open one leaves it to the
+	 * pull-up (high) or, active high, low */
 	if (id == CONTROL) {
-		set_inputs(avr, PINS_DIP_PORT, 0xFF, (uint8_t)opt.dip);
+		uint8_t levels = (uint8_t)(PINS_DIP_ACTIVE_LOW ? ~opt.dip : opt.dip);
+		set_inputs(avr, PINS_DIP_PORT, 0xFF, levels);
 	} else {
 		uint8_t mask[5] = { 0 }, value[5] = { 0 };
 		for (int k = 1; k <= 6; k++) {
+			int closed = (opt.switches >> (k - 1)) & 1;
 			mask[PINS_SWITCH_PORTS[k]] |= PINS_SWITCH_MASKS[k];
-			if (opt.switches & (1 << (k - 1)))
+			if (closed != PINS_SWITCH_ACTIVE_LOW)
 				value[PINS_SWITCH_PORTS[k]] |= PINS_SWITCH_MASKS[k];
 		}
 		for (int p = 0; p < 5; p++)
@@ -736,7 +796,41 @@ static const char USAGE[] =
 	"usage: hexbot-simavr --comm COMM.elf --control CONTROL.elf [--ir-link PATH]\n"
 	"         [--debug-link PATH] [--dip N] [--switches MASK] [--seconds S]\n"
 	"         [--fast] [--ir-script IN] [--debug-script IN] [--log OUT|-] [--verbose]\n"
-	"         [--hold]\n";
+	"         [--hold] [--board-record BOARD=KIND]... [--trace ddr,tick]\n";
+
+static int board_kind(const char *s)
+{
+	return !strcmp(s, "comm") ? BOARD_KIND_COMM : !strcmp(s, "control") ? BOARD_KIND_CONTROL :
+	       !strcmp(s, "none") ? 0 : -1;
+}
+
+/* --board-record comm=control: the comm board's EEPROM names a control board. */
+static void parse_record(const char *arg)
+{
+	int id = !strncmp(arg, "comm=", 5) ? COMM : !strncmp(arg, "control=", 8) ? CONTROL : -1;
+	int kind = id < 0 ? -1 : board_kind(strchr(arg, '=') + 1);
+	if (kind < 0)
+		usage_error("bad --board-record '%s' (BOARD=KIND: comm or control = comm, control "
+			    "or none)", arg);
+	opt.record[id] = kind;
+}
+
+/* --trace ddr,tick: DDR changes and Timer0 interrupt entries in the log as well. */
+static void parse_trace(const char *arg)
+{
+	char buf[64];
+	snprintf(buf, sizeof buf, "%s", arg);
+	for (char *save, *w = strtok_r(buf, ",", &save); w; w = strtok_r(NULL, ",", &save)) {
+		if (!strcmp(w, "ddr"))
+			opt.trace |= TRACE_DDR;
+		else if (!strcmp(w, "tick"))
+			opt.trace |= TRACE_TICK;
+		else
+			usage_error("bad --trace '%s' (a list of ddr, tick)", arg);
+	}
+	if (!opt.trace)
+		usage_error("bad --trace '%s' (a list of ddr, tick)", arg);
+}
 
 static void parse_args(int argc, char **argv)
 {
@@ -745,7 +839,8 @@ static void parse_args(int argc, char **argv)
 		{ "debug-link", 1, 0, 'd' }, { "dip", 1, 0, 'D' }, { "switches", 1, 0, 'w' },
 		{ "seconds", 1, 0, 's' }, { "fast", 0, 0, 'f' }, { "ir-script", 1, 0, 'I' },
 		{ "debug-script", 1, 0, 'S' }, { "log", 1, 0, 'l' }, { "verbose", 0, 0, 'v' },
-		{ "hold", 0, 0, 'H' }, { "help", 0, 0, 'h' }, { 0, 0, 0, 0 },
+		{ "hold", 0, 0, 'H' }, { "help", 0, 0, 'h' }, { "board-record", 1, 0, 'r' },
+		{ "trace", 1, 0, 't' }, { 0, 0, 0, 0 },
 	};
 	int c;
 	opterr = 0;
@@ -769,6 +864,8 @@ static void parse_args(int argc, char **argv)
 		case 'l': opt.log = optarg; break;
 		case 'v': opt.verbose = 1; break;
 		case 'H': opt.hold = 1; break;
+		case 'r': parse_record(optarg); break;
+		case 't': parse_trace(optarg); break;
 		case 'h': fputs(USAGE, stdout); exit(0);
 		case ':': usage_error("%s needs a value", argv[optind - 1]); break;
 		default: usage_error("unknown option %s", argv[optind - 1]);
@@ -782,6 +879,8 @@ static void parse_args(int argc, char **argv)
 		usage_error("%s", "--fast needs --seconds");
 	if (opt.fast && (opt.ir_link || opt.debug_link))
 		usage_error("%s", "--fast has no pseudo-terminals (no --ir-link/--debug-link)");
+	if (opt.trace && !opt.log)
+		usage_error("%s", "--trace needs --log");
 }
 
 int main(int argc, char **argv)

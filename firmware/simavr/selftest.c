@@ -1,10 +1,13 @@
 /* Self-test image for the simavr harness; the same ELF runs on both boards.
  *
  * Timer0: prescaler 64, TCNT0 reloaded to 0x64 in the overflow ISR (9.984 ms), counting
- * ticks and toggling PD7.  USART0 at UBRR 12, USART1 at UBRR 207 (8N1, UCSRnC written with
- * URSEL), received by interrupt, sent by polling UDRE.  PORTA selects the centre IR
- * transceiver (PA1), PORTE = 0x05.  A byte b on USART1 is answered on USART1 with
+ * ticks and toggling PD7; after 'c', the same from CTC mode (OCR0 = 155, the compare-match
+ * interrupt, no reload), as the HexBot images run it.  USART0 at UBRR 12, USART1 at UBRR
+ * 207 (8N1, UCSRnC written with URSEL), received by interrupt, sent by polling UDRE.
+ * PORTA selects the centre IR transceiver (PA1), PORTE = 0x05.  A byte b on USART1 is
+ * answered on USART1 with
  *   't' the tick counter's low byte   'd' PINC   'w' PINB   'b' "xyz" back to back
+ *   'a' PINA   'p' PIND   'c' Timer0 to CTC mode, answered with TCNT0
  *   's' PORTA to side channel 1 (PA2), 'S' sent there, back to centre 10 ticks later
  *       with 'C'
  *   'X' a write outside RAM (simavr stops the core: the harness reports a crash)
@@ -31,6 +34,12 @@ static volatile uint8_t ticks;
 ISR(TIMER0_OVF_vect)
 {
 	TCNT0 = 0x64;
+	ticks++;
+	PORTD ^= _BV(PD7);
+}
+
+ISR(TIMER0_COMP_vect)
+{
 	ticks++;
 	PORTD ^= _BV(PD7);
 }
@@ -102,6 +111,14 @@ int main(void)
 			case 't': tx1(ticks); break;
 			case 'd': tx1(PINC); break;
 			case 'w': tx1(PINB); break;
+			case 'a': tx1(PINA); break;
+			case 'p': tx1(PIND); break;
+			case 'c':
+				OCR0 = 155;
+				TCCR0 = _BV(WGM01) | _BV(CS01) | _BV(CS00);
+				TIMSK = _BV(OCIE0);
+				tx1(TCNT0);
+				break;
 			case 'b': tx1('x'); tx1('y'); tx1('z'); break;
 			case 's':
 				PORTA = SIDE1;

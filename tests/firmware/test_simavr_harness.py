@@ -15,6 +15,8 @@ from pathlib import Path
 
 import pytest
 
+from bus import pins
+
 ROOT = Path(__file__).resolve().parents[2]
 SRC = ROOT / "firmware" / "simavr"
 BUILD = ROOT / "firmware" / "build"
@@ -156,7 +158,9 @@ def test_real_time_pacing_and_writes_nobody_reads(elf, tmp_path) -> None:
 
 T_A, T_BURST, T_T1, T_T2, T_FRAME = 100 * MS, 300 * MS, 600 * MS, 1600 * MS, 1700 * MS
 T_SIDE, T_DROP, T_A2, T_DIP, T_SW = 2200 * MS, 2260 * MS, 2500 * MS, 2700 * MS, 2800 * MS
+T_SWA, T_SWD, T_CTC, T_END = 2850 * MS, 2900 * MS, 3000 * MS, 4500 * MS
 FRAME = bytes.fromhex("2a15010000000000000023")
+DIP, SWITCHES = 0xA5, 0x2B  # sides 1, 2, 4, 6 have a neighbour
 
 
 @pytest.fixture(scope="module")
@@ -166,12 +170,13 @@ def fast_log(elf, tmp_path_factory) -> list[tuple[int, str, tuple[str, ...]]]:
     script.write_text(
         "# <sim_time_ns> <hex bytes>\n"
         f"{T_A} 41\n{T_BURST} 62\n{T_T1} 74\n{T_T2} 74\n{T_FRAME} {FRAME.hex()}\n"
-        f"{T_SIDE} 73\n{T_DROP} 71\n{T_A2} 41\n{T_DIP} 64\n{T_SW} 77\n")
+        f"{T_SIDE} 73\n{T_DROP} 71\n{T_A2} 41\n{T_DIP} 64\n{T_SW} 77\n{T_SWA} 61\n"
+        f"{T_SWD} 70\n{T_CTC} 63\n")
     logs = []
     for run in (1, 2):
         log = tmp / f"log{run}.txt"
-        r = _harness(elf, "--fast", "--seconds", 3, "--ir-script", script, "--log", log,
-                     "--dip", "0xA5", "--switches", "0x2B")
+        r = _harness(elf, "--fast", "--seconds", T_END / 1e9, "--ir-script", script, "--log", log,
+                     "--dip", hex(DIP), "--switches", hex(SWITCHES))
         assert r.returncode == 0, r.stderr
         logs.append(log.read_text())
     assert logs[0] == logs[1]  # deterministic
@@ -214,8 +219,14 @@ def test_fast_transmit_is_ten_bits_at_the_ubrr_baud(fast_log) -> None:
         assert TX_FRAME <= t1 - t0 < TX_FRAME + 20_000
 
 
+def _tick_toggles(fast_log, start, end):
+    """PD7 toggles of the comm board (one per Timer0 interrupt) in [start, end)."""
+    return [t for t, k, a in fast_log
+            if k == "port" and a[:2] == ("comm", "D") and start <= t < end]
+
+
 def test_fast_tick_is_9_984_ms(fast_log) -> None:
-    toggles = [t for t, k, a in fast_log if k == "port" and a[:2] == ("comm", "D")]
+    toggles = _tick_toggles(fast_log, 0, T_CTC)
     gaps = [b - a for a, b in zip(toggles, toggles[1:])]
     assert len(gaps) > 250
     assert sorted(gaps)[len(gaps) // 2] == TICK
@@ -224,6 +235,18 @@ def test_fast_tick_is_9_984_ms(fast_log) -> None:
     # two 't' one second apart: 1 s / 9.984 ms = 100.16 ticks
     (_, r1), (_, r2) = _after(fast_log, T_T1, "ir")[0], _after(fast_log, T_T2, "ir")[0]
     assert (int(r2[0], 16) - int(r1[0], 16)) % 256 in (100, 101)
+
+
+def test_fast_ctc_tick_is_9_984_ms(fast_log) -> None:
+    """'c' moves Timer0 to CTC mode (OCR0 = 155, compare-match interrupt, no reload): the
+    counter clears itself after 156 counts, so the tick stays on the 64-cycle grid."""
+    t_switch = _after(fast_log, T_CTC, "ir")[0][0]  # the answer: TCNT0 just after the switch
+    toggles = _tick_toggles(fast_log, t_switch + 2 * TICK, T_END)  # the first round is partial
+    gaps = [b - a for a, b in zip(toggles, toggles[1:])]
+    assert len(gaps) > 100
+    assert all(abs(g - TICK) < 20_000 for g in gaps), sorted(set(gaps))
+    # no drift: every tick within the ISR's latency jitter of its slot on the grid
+    assert all(abs(t - toggles[0] - k * TICK) < 20_000 for k, t in enumerate(toggles))
 
 
 def test_fast_side_channel_drops_bytes_both_ways(fast_log) -> None:
@@ -244,13 +267,26 @@ def test_fast_side_channel_drops_bytes_both_ways(fast_log) -> None:
     assert a_b == ("42",) and 0 <= t_b - (T_A2 + IR_FRAME) < 300_000
 
 
+def _byte(events, t0, kind):
+    return int(_after(events, t0, kind)[0][1][0], 16)
+
+
 def test_fast_dip_and_switch_inputs(fast_log) -> None:
-    # 'd': the comm board has no DIP switches; the control board's PINC reads --dip
-    assert _after(fast_log, T_DIP, "ir")[0][1] == ("00",)
-    assert _after(fast_log, T_DIP, "debug")[0][1] == ("a5",)
-    # 'w': --switches 0x2B = sides 1, 2, 4, 6 -> PB0, PB1, PB5, PB7 on the comm board
-    assert _after(fast_log, T_SW, "ir")[0][1] == ("a3",)
-    assert _after(fast_log, T_SW, "debug")[0][1] == ("00",)
+    """Both switch kinds are active low (bus.pins): a closed switch pulls its pin low, an
+    open one reads high (the pull-up the image sets)."""
+    assert pins.DIP_ACTIVE_LOW and pins.OPTICAL_SWITCH_ACTIVE_LOW
+    # 'd': the comm board has no DIP switches; the control board's PINC reads --dip's complement
+    assert _byte(fast_log, T_DIP, "ir") == 0x00
+    assert _byte(fast_log, T_DIP, "debug") == pins.dip_levels(DIP) == 0x5A
+    # --switches 0x2B = sides 1, 2, 4, 6: PB0, PB1 and PA3, PD2 low; side 3's PB4 and side
+    # 5's PA4 high; the control board has no optical switches
+    levels = pins.switch_levels([bool(SWITCHES >> k & 1) for k in range(6)])
+    assert levels == {"B": 0x10, "A": 0x10, "D": 0x00}
+    assert _byte(fast_log, T_SW, "ir") == levels["B"]  # 'w': PINB, no other pin driven
+    assert _byte(fast_log, T_SW, "debug") == 0x00
+    masks = pins.port_masks(list(pins.OPTICAL_SWITCH.values()))
+    assert _byte(fast_log, T_SWA, "ir") & masks["A"] == levels["A"]  # 'a': PINA
+    assert _byte(fast_log, T_SWD, "ir") & masks["D"] == levels["D"]  # 'p': PIND
 
 
 def _one_line(err: str) -> str:
@@ -268,6 +304,10 @@ def test_errors_are_one_line_and_exit_2(elf, tmp_path) -> None:
         ["--comm", elf, "--control", elf, "--bogus"],
         ["--comm", elf, "--control", elf, "--dip", "256"],
         ["--comm", elf, "--control", elf, "--fast"],
+        ["--comm", elf, "--control", elf, "--board-record", "comm=bogus"],
+        ["--comm", elf, "--control", elf, "--board-record", "side=comm"],
+        ["--comm", elf, "--control", elf, "--trace", "ddr,clock", "--log", "-"],
+        ["--comm", elf, "--control", elf, "--trace", "tick"],
         ["--comm", elf],
     ]
     for args in cases:
