@@ -1,10 +1,12 @@
 /* The board layer on the ATmega162 at 1 MHz: ports A..E, USART0 and USART1 (8N1, polled
  * like the thesis's ReceiveByte/TransmitByte, so a byte the program does not read waits in
  * the two-byte FIFO and the third overruns exactly as on the chip), a background transmit
- * queue emptied by the UDRE interrupt, and the 10 ms Timer0 tick. */
+ * queue emptied by the UDRE interrupt, the 10 ms Timer0 tick, and the board-kind guard:
+ * an image that finds another board's record in the EEPROM drives no pin. */
 #include <avr/interrupt.h>
 #include <avr/io.h>
 #include <util/atomic.h>
+#include <util/delay.h>
 
 #include "hexbot.h"
 
@@ -159,8 +161,67 @@ __attribute__((naked, used, section(".init3"))) static void timer_at_power_up(vo
     TCCR0 = _BV(WGM01) | _BV(CS01) | _BV(CS00);
 }
 
+/* --- the board-kind guard (bus/chip.py) --- */
+#if defined(HEXBOT_COMM)
+#define OWN_KIND BOARD_KIND_COMM
+#define OTHER_KIND BOARD_KIND_CONTROL
+#define OWN_UBRR1 IR_UBRR      /* UART1 of the comm board: the IR link */
+#define OTHER_UBRR1 DEBUG_UBRR /* ... of the control board: the debug terminal */
+static const char GUARD_OTHER[] PROGMEM = TXT_GUARD_COMM_ON_CONTROL;
+static const char GUARD_NONE[] PROGMEM = TXT_GUARD_COMM_ON_NONE;
+#else
+#define OWN_KIND BOARD_KIND_CONTROL
+#define OTHER_KIND BOARD_KIND_COMM
+#define OWN_UBRR1 DEBUG_UBRR
+#define OTHER_UBRR1 IR_UBRR
+static const char GUARD_OTHER[] PROGMEM = TXT_GUARD_CONTROL_ON_COMM;
+static const char GUARD_NONE[] PROGMEM = TXT_GUARD_CONTROL_ON_NONE;
+#endif
+
+static uint8_t eeprom_byte(uint8_t addr)
+{
+    loop_until_bit_is_clear(EECR, EEWE);
+    EEAR = addr;
+    EECR |= _BV(EERE);
+    return EEDR;
+}
+
+/* The kind the EEPROM record names: "HB", kind, kind ^ 0xFF; 0 for none (erased, damaged). */
+static uint8_t board_kind(void)
+{
+    if (eeprom_byte(BOARD_RECORD_ADDR) != BOARD_RECORD_MAGIC0 ||
+        eeprom_byte(BOARD_RECORD_ADDR + 1) != BOARD_RECORD_MAGIC1)
+        return 0;
+    uint8_t kind = eeprom_byte(BOARD_RECORD_ADDR + 2);
+    return (uint8_t)(kind ^ eeprom_byte(BOARD_RECORD_ADDR + 3)) == 0xFF ? kind : 0;
+}
+
+/* Not this image's board: every pin stays an input without pull-up (DDR and PORT as at
+ * reset); only UART1's transmitter runs (it takes over TXD1), at the baud of the board the
+ * record names, and says so about once a second, forever. */
+__attribute__((noreturn)) static void wrong_board(uint8_t kind)
+{
+    const char *text = GUARD_NONE;
+    UBRR1L = OWN_UBRR1;
+    if (kind == OTHER_KIND) {
+        text = GUARD_OTHER;
+        UBRR1L = OTHER_UBRR1;
+    }
+    UCSR1B = _BV(TXEN1); /* UCSR1C is 8N1 at reset */
+    for (;;) {
+        for (const char *p = text; pgm_read_byte(p); p++) {
+            loop_until_bit_is_set(UCSR1A, UDRE1);
+            UDR1 = pgm_read_byte(p);
+        }
+        _delay_ms(1000);
+    }
+}
+
 int main(void)
 {
+    uint8_t kind = board_kind();
+    if (kind != OWN_KIND)
+        wrong_board(kind);
     board_init(program_outputs, program_pullups);
     for (;;)
         program_step();
