@@ -7,9 +7,8 @@ optimal assignment that leaves every module already on a goal cell where it is
 goal) and voids (empty goal cells) need assigning.
 
 The bound ignores that modules must walk over the surface of the structure: when
-material must go around a large overlap of start and goal, no plan comes near it (on a
-10-module convex instance, seed 2, the bound is 10 moves and the exact planner needs
-18).
+material must go around a large overlap of start and goal, no plan comes near it (even at
+10 modules the fewest moves can be 1.8x the bound: docs/planner.md, *Benchmark*).
 
 Four families of random connected instances (both configurations containing the fixed
 cell (0,0)) serve the tests and the benchmark; in the first three start and goal are
@@ -78,9 +77,8 @@ LARGE_ROWS = 400
 #: instances seen; a cap keeps a price war short: the rows still free are augmented).
 REDUCTION_VISITS = 20
 #: The reductions are used only if they leave at most this share of the rows free. Where
-#: distances tie everywhere (hex-convex shapes of 1000 modules: 90-96% left free),
-#: augmenting from their potentials was no quicker than from zero (seeds 0, 2 and 3:
-#: 0.33, 1.22 and 0.47 s instead of 0.31, 0.73 and 0.58 s).
+#: distances tie everywhere (hex-convex shapes: most rows left free), augmenting from
+#: their potentials was no quicker than from zero.
 REDUCED_FREE = 0.5
 
 

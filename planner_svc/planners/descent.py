@@ -25,16 +25,16 @@ cost. :func:`descend` builds such a plan from an optimal electron -> void assign
   (:data:`FILL_VOIDS`), a wider window around each void in turn, nearest pairs first,
   is searched for rotations after which it holds one electron and one void fewer
   (:func:`planner_svc.planners.windows.local_exchange`), the bound lower. The last voids are
-  often walled in a few cells from their electrons, and the relays reached them by long
-  chains or not at all (scrambled blobs of 1000 modules: seed 2 stopped with 3 voids
-  left; with fills of 16-21 moves each the descent reaches the goal and the plan is
-  1.53x the bound instead of 1.73x).
+  often walled in a few cells from their electrons, where the relays reach them by long
+  chains or not at all.
 
 It stops when the goal is reached, when neither an escape nor a fill is found, or when
 its search allowance is spent. ``complete`` runs it first on large fleets whose voids
-are near their electrons and lets the relays finish from where it stopped (scrambled
-blobs of 1000 modules, seeds 0-19: the median plan 1.59x the bound once re-planned in
-windows, instead of 1.93x).
+are near their electrons and lets the relays finish from where it stopped: the plans are
+shorter than the relays' alone.
+
+What each choice here gave when it was measured: docs/planner.md, *Measured for what
+was kept*.
 """
 
 from __future__ import annotations
@@ -49,26 +49,23 @@ from .shorten import moved, still_legal
 from .windows import window_search, local_exchange
 
 #: Window of an escape search: radius around an electron or void, and configurations
-#: expanded per window (scrambled blobs of 1000 modules, seeds 0-19: with 300 the descent
-#: and its relays reached the goal on 12, with 600 on 13, for about as many moves in all;
-#: radius 2 or 4 each reach it on some seeds and not on others).
+#: expanded per window (a larger budget finishes more often for about as many moves; no
+#: other radius does better everywhere).
 ESCAPE_RADIUS = 3
 ESCAPE_BUDGET = 600
 #: An escape this short is taken at once (the windows are searched shortest pairs first).
 ESCAPE_ENOUGH = 2
-#: Configurations all escape searches of one descent may price. Scrambled blobs of 1000
-#: modules spend up to about 200 000 where the descent goes far (seeds 7 and 9: with
-#: 80 000 it stopped with 17 and 26 voids left, and the plans were longer); ``complete``
-#: does not descend where voids are far from their electrons (Eden blobs), which would
-#: spend it all and stop.
+#: Configurations all escape searches of one descent may price: enough for a descent that
+#: goes far on a large fleet (with less it stops with voids left, and the plans are
+#: longer); ``complete`` does not descend where voids are far from their electrons (Eden
+#: blobs), which would spend it all and stop.
 DESCENT_ALLOWANCE = 200_000
 #: Pairs at most this far apart are looked at for settled modules stepping out of their
 #: line (cells on a shortest line between them: a pair's parallelogram).
 LINE_LIMIT = 8
 #: Fills: window radius and configurations expanded around a void, and how many voids
-#: may be left for them to be tried (scrambled blobs of 1000 modules: the escape windows
-#: of radius 3 and, for the relays' exchanges, radius 4 hold no fill of the last voids of
-#: seeds 0-3; of radius 5 most do, in 0.02-0.6 s).
+#: may be left for them to be tried (the last voids need a wider window than an escape's
+#: or a relay exchange's to be filled).
 FILL_WINDOW = (5, 5000)
 FILL_VOIDS = 8
 #: A window the escape searches have not remembered (a remembered None is a failure).

@@ -9,9 +9,10 @@ into the plan's moves. What follows is the whole planner, as a user meets it.
 It finishes on every instance of the benchmark's four families (convex, sparse, Eden
 and scrambled, up to 1000 modules) and on small fleets (the exact search takes over).
 Large rough blobs (Eden, 1000 modules) take a minute or so and long plans, through the last
-resort below, and not all finish (of seeds 0-4, 0, 2 and 3 do): on seeds 1 and 4 the
-relays wall voids into lakes, and opening them leaves 15-41 voids. Where it does not
-finish it says "stuck" and never claims unreachability.
+resort below, and not all finish: where the relays wall voids into lakes, opening them
+can leave tens of voids. Where it does not finish it says "stuck" and never claims
+unreachability. What the choices below gave when they were measured: docs/planner.md,
+*Measured for what was kept*.
 
 Modules are interchangeable, so only electrons (modules off the goal) need to move,
 each to some void (empty goal cell).
@@ -36,17 +37,16 @@ fewer run every phase. Candidates are compared as they will be played: shortened
 
 Before the relays, fleets of more than :data:`SMOOTH_LIMIT` modules whose assignment
 bound is at most :data:`DESCENT_REACH` moves per electron (a local rearrangement, as the
-scrambled blobs: 2-3) *descend the bound* (:mod:`planner_svc.planners.descent`): moves that each
-lower the assignment bound by one, none sealing a void or freezing an electron, short
-window searches where no move does, and wider ones that fill the last few voids; the
-relays go on from where it stops. When they reach the goal that plan is kept (scrambled
-blobs of 1000 modules, seeds 0-19: on 15, e.g. seed 0 344 moves instead of 423 and seed
-9 339 instead of 1384). If not, a few digs from where it stopped come next (holes dug
-open and refilled), kept when the plan is at most :data:`DUG_EARLY` times the bound;
-otherwise everything below runs from the start. Where the relays are stuck too, digging
-on from where the descent stopped is kept when it is at most :data:`DUG_KEEP` times the
-bound (seeds 0-39: 6 of the 10 that get there, e.g. seed 6 259 moves instead of 646, in
-10 s instead of 27); otherwise it is one more try of the last resort.
+scrambled blobs: 2-3) *descend the bound* (:mod:`planner_svc.planners.descent`): moves
+that each lower the assignment bound by one, none sealing a void or freezing an
+electron, short window searches where no move does, and wider ones that fill the last
+few voids; the relays go on from where it stops. When they reach the goal that plan is
+kept (mostly far shorter than the relays' from the start). If not, a few digs from where
+it stopped come next (holes dug open and refilled), kept when the plan is at most
+:data:`DUG_EARLY` times the bound; otherwise everything below runs from the start. Where
+the relays are stuck too, digging on from where the descent stopped is kept when it is
+at most :data:`DUG_KEEP` times the bound; otherwise it is one more try of the last
+resort.
 
 Under Table 4-3 a lone walker cannot cross a
 notch of the surface (a free cell with four occupied neighbours: no rotation pivots
@@ -128,18 +128,14 @@ advances and up to :data:`HOLE_CALLS_LARGE` digs). On those fleets, unless voids
 walled in (below), the relays also run again, digging where they stop, with the voids
 next to a *pinned* electron waiting while it is there (:meth:`Heuristic._pinned`: with
 the goal complete around it, it could not rotate; relays that stopped had often walled
-such electrons into cracks of the goal: scrambled blobs of 1000 modules, seed 1: 680
-moves instead of 1706), and the shortest of the three plans is kept. On those larger
-fleets, relays that
-stop with more than :data:`FEW_VOIDS` voids left have walled voids in: the relays from
-where phase 1 stopped and on the reverse problem are skipped, the smoothed shapes go
-first and plain digging runs only when they fail (Eden blobs of 1000 modules: seeds 0
-and 2 solved that way, seed 3 by the plain digging after, 6.3-10.6x the bound once
-shortened, 52-90 s). If that fails too, small fleets
-(``exact_limit`` modules or fewer) fall back to
+such electrons into cracks of the goal), and the shortest of the three plans is kept. On
+those larger fleets, relays that stop with more than :data:`FEW_VOIDS` voids left have
+walled voids in: the relays from where phase 1 stopped and on the reverse problem are
+skipped, the smoothed shapes go first and plain digging runs only when they fail. If
+that fails too, small fleets (``exact_limit`` modules or fewer) fall back to
 :mod:`planner_svc.planners.exact` from the current configuration, which also proves
-unreachability (moves are reversible, so unreachable from there is unreachable from
-the start); larger fleets report that the heuristic is stuck, without claiming
+unreachability (moves are reversible, so unreachable from there is unreachable from the
+start); larger fleets report that the heuristic is stuck, without claiming
 unreachability.
 
 The plan kept is shortened once more and re-planned in small windows

@@ -39,7 +39,7 @@ HOLE_NEAR_PEELS = 300
 #: Parking cells the nearest-first peel prefers, tried in turn: any (0: the nearest), or
 #: at least this far from the cells still to peel. Parked near, modules wall in the face
 #: being eaten; parked far, they may block the way elsewhere, so a fill that fails with
-#: one is tried with the next (Eden 1000, seed 3: holes 2-4 cells deep in the bulk).
+#: one is tried with the next (holes a few cells deep in the bulk need it).
 HOLE_PARK_FAR = (0, 10, 14)
 #: The order the dig tries them in: the smallest craters first (the plans stay short).
 HOLE_DIGS = (("crater", HOLE_CRATERS[0]), ("nearest", HOLE_PARK_FAR[0]),

@@ -1,6 +1,7 @@
 """The order of ``complete``'s phases (:func:`plan_complete`): which run, on which
 fleets, which plan is kept, and the notes that say where it comes from. See
-:mod:`planner_svc.planners.complete` for the whole story."""
+:mod:`planner_svc.planners.complete` for the whole story, and docs/planner.md, *Measured
+for what was kept*, for what the thresholds here gave when they were measured."""
 
 from __future__ import annotations
 
@@ -28,20 +29,14 @@ FEWEST_BUDGET = 2500
 #: this many moves per electron.
 DESCENT_REACH = 4
 #: Where the descent and the relays are both stuck, digging on from where the descent
-#: stopped is kept at once if, shortened, it is at most this many times the bound
-#: (scrambled blobs of 1000 modules, seeds 0-39: 6 of 10 such plans were 2.0-3.3x, and
-#: the last resort's other tries beat none of them; the other 4 were 3.8-8.7x, and the
-#: smoothed run beat three. Seeds 40-59: kept on five, one of them 344 moves where the
-#: reverse problem's relays, which run after, would have made 306).
+#: stopped is kept at once if, shortened, it is at most this many times the bound: below
+#: it the last resort's other tries seldom beat it, above it they often do.
 DUG_KEEP = 3.5
 #: Where the descent's relays are stuck, digging on from where the descent stopped (at
 #: most DUG_EARLY_CALLS digs) is kept before any other relays run if, shortened, it is
-#: at most this many times the bound. Scrambled blobs of 1000 modules, seeds 0-59: kept
-#: on seeds 1, 6, 21, 40 and 55 (1.8-2.3x, 1-5 digs, 0.04-0.5 s). Seed 21 takes 276 moves
-#: instead of the 314 of the relays from the start; the others had been dug from there
-#: anyway once those relays stopped (1.5-2 s each). Seeds 18, 29 and 31 (2.7-3.1x) and 30
-#: (3.0x; the relays from the start make 285 moves, 1.7x) are left to them, as before.
-#: On seed 23 the five digs fail (4-5 s lost).
+#: at most this many times the bound: a few digs are quick, and where they give a plan
+#: that short the relays from the start mostly get stuck and come to the same digs later;
+#: longer ones are left to those relays, which are then often shorter.
 DUG_EARLY = 2.5
 DUG_EARLY_CALLS = 5
 #: Digs on the smoothed shapes of fleets over SMOOTH_LIMIT modules (the last resort there).
@@ -232,13 +227,11 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
         relays.run()
         # On large fleets, relays stopped with more than a few voids left have walled
         # voids in (holes, lakes): the relays from where phase 1 stopped and on the
-        # reverse problem stop too (Eden blobs of 1000 modules, seeds 0-4: 19-68 voids
-        # left, 40 s spent), and only digging (the last resort) is tried. Scrambled blobs
-        # stop with at most 3 (seeds 0-9), where those runs often finish.
+        # reverse problem stop too, after long searches, and only digging (the last
+        # resort) is tried. With a few voids left those runs often finish.
         walled = len(goal) > SMOOTH_LIMIT and len(goal - relays.occ) > FEW_VOIDS
-        # Carrying on from where phase 1 stopped is sometimes much shorter (scrambled
-        # blobs of 100 modules: mean 1.52x the bound instead of 1.70x over seeds 0-9);
-        # on large fleets it only runs when needed (the time target).
+        # Carrying on from where phase 1 stopped is sometimes much shorter; on large
+        # fleets it only runs when needed (the time target).
         if not walled and (not forward.ok or len(goal) <= SMOOTH_LIMIT):
             Heuristic(first, start=occ, advance=advance).run()
             if first.ok and (not forward.ok or _shortened_difference(first, forward) < 0):
@@ -247,8 +240,7 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
             not forward.ok or _shortened_difference(front, forward) <= 0):
         forward = front
     # Where the relays are stuck too, the descent's dig is kept if short enough: what
-    # runs below takes 10-40 s more, and beat 1 of the 11 plans kept so on scrambled
-    # seeds 0-59 (see DUG_KEEP).
+    # runs below takes far longer and seldom beats it (see DUG_KEEP).
     if not forward.ok and descent is not None:
         assert dug_descent is not None
         if not dug_descent.ok:          # it stopped early: dig on with the rest
@@ -268,20 +260,13 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
         # Last resort: digging holes open and filling them (:meth:`Heuristic._hole_step`;
         # long plans, but they reach the goal), by the relays from where they stopped
         # (no other run failed here), and through smoothed shapes: fewer notches stop the
-        # walkers, so relays go further and less is dug (Eden blobs of 100 modules: 3.8x
-        # the bound instead of 9x on two of three seeds). Both are tried and the shortest
-        # plan kept: neither is always shorter (scrambled blobs of 1000 modules, seeds 1,
-        # 6 and 9: 1706, 2056 and 2968 moves digging from where the relays stopped,
-        # 1954, 942 and 3461 through smoothed shapes). After a bound descent, digging on
-        # from where it stopped is a try too. On large fleets without a descent the
-        # relays also run again with pinned electrons first (:meth:`Heuristic._pinned`),
+        # walkers, so relays go further and less is dug. Both are tried and the shortest
+        # plan kept: neither is always shorter. After a bound descent, digging on from
+        # where it stopped is a try too. On large fleets without a descent the relays
+        # also run again with pinned electrons first (:meth:`Heuristic._pinned`),
         # digging where they stop: stuck relays have often walled electrons into cracks
-        # of the goal (before the descent, seeds 1, 9 and 10: 680, 2211 and 496 moves
-        # instead of 1706, 2960 and 562; seeds 6, 11, 13, 15 and 18 kept their plans, one
-        # relay run later). Where voids are walled in (large fleets only), smoothed
-        # shapes go first and plain digging runs only when that fails: on Eden blobs of
-        # 1000 modules (seeds 0-4) it finished none, and took 45 s (pins changed nothing
-        # there on seeds 0 and 3).
+        # of the goal. Where voids are walled in (large fleets only), smoothed shapes go
+        # first and plain digging runs only when that fails (run first, it finished none).
         assert relays is not None
         large = len(goal) > SMOOTH_LIMIT
         calls = HOLE_CALLS_LARGE if large else HOLE_CALLS
@@ -300,8 +285,8 @@ def _plan_phases(plan: Plan, exact_limit: int) -> bool:
             dug = Plan(plan.planner, p)
             relays.dig_on(dug, calls)
             tries.append((dug, DUG_NOTE))
-            # Pinned relays won none of the last resorts after a descent (scrambled
-            # 1000, seeds 0-59: the descent's digs or the others were shorter).
+            # After a descent, pinned relays won none of the last resorts (the descent's
+            # digs or the others were shorter): they run only without one.
             if large and descent is None:
                 pinned = Heuristic(Plan(plan.planner, p), advance=advance, pins=True)
                 pinned.run()
