@@ -29,6 +29,7 @@ from bus import UsageError
 from bus.chip import FUSES, ISP_BITCLOCK_US, BoardKind, board_record, read_board_record
 from bus.codec import encode_command
 from bus.errors import HexbenchError
+from bus.pins import COMM_PULLUPS, CONTROL_PULLUPS, port_masks
 from bus.timing import NS_PER_S, TICK_NS
 from hil.avrdude import Avrdude, AvrdudeError, used
 from hil.isp import format_ihex, fuses_of, fuses_text
@@ -181,7 +182,27 @@ def differential(profile: str, script, seconds: float, *, module_id: int = 1, sw
     model = run_script(script, seconds, profile=profile, module_id=module_id, switches=switches)
     lines = run_fast(format_script(script), seconds, profile=profile, module_id=module_id,
                      switches=switches)
-    return model, [Event.parse(line) for line in lines if line.strip()]
+    return model, _after_board_init([Event.parse(line) for line in lines if line.strip()])
+
+
+#: The pull-ups each image's board_init writes (bus.pins): the model's ports start there.
+_PULLUPS = {"comm": port_masks(COMM_PULLUPS), "control": port_masks(CONTROL_PULLUPS)}
+
+
+def _after_board_init(events):
+    """The firmware's events without its board_init pull-up writes: the chip's ports reset to
+    0 and board_init sets the pull-ups 2-3 ms later (after the C runtime's start-up); the
+    model's ports start in that state, as the host build's do."""
+    seen: set[tuple[str, str]] = set()
+    out = []
+    for e in events:
+        if e.what == "port" and e.t_ns < TICK_NS:
+            board, letter, value = e.detail.split()
+            if (board, letter) not in seen and int(value, 16) == _PULLUPS[board][letter]:
+                seen.add((board, letter))
+                continue
+        out.append(e)
+    return out
 
 
 # -- commands ---------------------------------------------------------------------------------------

@@ -94,13 +94,13 @@ class ControlBoard(Mcu):
         super()._write(port, value)
         if not changed & _ACTUATOR_MASK.get(port, 0):
             return
-        if not self._guard_due and self.driver is None:  # the C program has its own guard
-            # the guard first, then the report, as the C step does
-            self._guard_due = True
-            self.clock.call_later(0, self._coil_guard)
         if self._reporting and not self._report_due:
             self._report_due = True  # one report for all the bits a step changes at once
             self.clock.call_later(0, self._report)
+        if not self._guard_due and self.driver is None:  # the C program has its own guard
+            # after the report, as the C step does: the limit's switch-off is reported anew
+            self._guard_due = True
+            self.clock.call_later(0, self._coil_guard)
 
     # -- the coil on-time limit (ours, both profiles; bus/timing.py) ----------------------------
     def _coil_guard(self) -> None:

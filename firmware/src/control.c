@@ -215,41 +215,43 @@ static uint8_t co_main(void)
 /* Which coils are on: solenoids J1..J6, magnets positive and negative (bit s-1 = side s). */
 static void coil_bits(uint8_t bits[3])
 {
+    uint8_t port[5];
+    for (uint8_t p = 0; p < 5; p++)
+        port[p] = board_port(p);
     bits[0] = bits[1] = bits[2] = 0;
     for (uint8_t s = 1; s <= 6; s++) {
         uint8_t b = (uint8_t)(1u << (s - 1));
-        if (board_port(fw_byte(&JOINT_PORT[s])) & fw_byte(&JOINT_MASK[s]))
+        if (port[fw_byte(&JOINT_PORT[s])] & fw_byte(&JOINT_MASK[s]))
             bits[0] |= b;
-        if (board_port(fw_byte(&POS_PORT[s])) & fw_byte(&POS_MASK[s]))
+        if (port[fw_byte(&POS_PORT[s])] & fw_byte(&POS_MASK[s]))
             bits[1] |= b;
-        if (board_port(fw_byte(&NEG_PORT[s])) & fw_byte(&NEG_MASK[s]))
+        if (port[fw_byte(&NEG_PORT[s])] & fw_byte(&NEG_MASK[s]))
             bits[2] |= b;
     }
 }
 
 /* The on-time limits (ours, both profiles; bus/timing.py): a coil seen on at the end of every
- * step since tick t0 is switched off on tick t0 + its limit, and a "LIM" line
- * names it on the debug UART. A step looks at the coils only when they changed or when the
- * earliest limit is due, so the main loop stays as quick as before. */
+ * step since tick t0 is switched off on tick t0 + its limit, and a "LIM" line names it on the
+ * debug UART. A step looks at the coils only when they changed or when the earliest limit is
+ * due, so the main loop stays as quick as before. Returns 1 if it switched a coil off. */
 static uint8_t coil_on[3], guard_armed;
 static uint16_t coil_since[3][6], guard_due;
 
-static void coil_guard(uint8_t changed)
+static uint8_t coil_guard(const uint8_t bits[3])
 {
-    if (!changed && !(guard_armed && board_tick_reached(guard_due)))
-        return;
-    uint8_t bits[3], over[3] = {0, 0, 0}, any = 0;
-    coil_bits(bits);
+    uint8_t over[3] = {0, 0, 0}, any = 0;
+    uint16_t now = board_ticks();
     guard_armed = 0;
     for (uint8_t g = 0; g < 3; g++) {
+        uint16_t limit = g ? MAGNET_ON_LIMIT_TICKS : SOLENOID_ON_LIMIT_TICKS;
         for (uint8_t s = 0; s < 6; s++) {
             uint8_t b = (uint8_t)(1u << s);
             if (!(bits[g] & b))
                 continue;
             if (!(coil_on[g] & b))
-                coil_since[g][s] = board_ticks();
-            uint16_t due = (uint16_t)(coil_since[g][s] + (g ? MAGNET_ON_LIMIT_TICKS : SOLENOID_ON_LIMIT_TICKS));
-            if (board_tick_reached(due)) {
+                coil_since[g][s] = now;
+            uint16_t due = (uint16_t)(coil_since[g][s] + limit);
+            if ((int16_t)(now - due) >= 0) {
                 over[g] |= b, any = 1;
             } else if (!guard_armed || (int16_t)(due - guard_due) < 0) {
                 guard_due = due, guard_armed = 1;
@@ -257,8 +259,10 @@ static void coil_guard(uint8_t changed)
         }
         coil_on[g] = (uint8_t)(bits[g] & ~over[g]);
     }
+    if (guard_armed)
+        board_tick_reached(guard_due); /* on the host: be stepped when it is due */
     if (!any)
-        return;
+        return 0;
     for (uint8_t s = 1; s <= 6; s++) {
         uint8_t b = (uint8_t)(1u << (s - 1));
         if (over[0] & b)
@@ -270,12 +274,11 @@ static void coil_guard(uint8_t changed)
     }
     uint8_t out[8] = {TXT_LIM[0], TXT_LIM[1], TXT_LIM[2], over[0], over[1], over[2], TXT_EOL[0], TXT_EOL[1]};
     board_tx_queue(UART1, out, sizeof out);
+    return 1;
 }
 
-static void report(void)
+static void report(const uint8_t bits[3])
 {
-    uint8_t bits[3];
-    coil_bits(bits);
     if (have_reported && bits[0] == reported[0] && bits[1] == reported[1] && bits[2] == reported[2])
         return;
     uint8_t out[8] = {TXT_ACT[0], TXT_ACT[1], TXT_ACT[2], bits[0], bits[1], bits[2], TXT_EOL[0], TXT_EOL[1]};
@@ -285,21 +288,21 @@ static void report(void)
     }
 }
 
-static uint8_t actuators_changed(const uint8_t before[5])
-{
-    uint8_t changed = 0;
-    for (uint8_t p = 0; p < 5; p++)
-        changed |= (uint8_t)((board_port(p) & ACTUATOR_BITS[p]) != before[p]);
-    return changed;
-}
-
 void program_step(void)
 {
-    uint8_t before[5];
+    uint8_t before[5], bits[3], changed = 0;
     for (uint8_t p = 0; p < 5; p++)
         before[p] = board_port(p) & ACTUATOR_BITS[p];
     co_main();
-    coil_guard(actuators_changed(before));
-    if (reporting && actuators_changed(before)) /* one report for every bit a step changed */
-        report();
+    for (uint8_t p = 0; p < 5; p++)
+        changed |= (uint8_t)((board_port(p) & ACTUATOR_BITS[p]) != before[p]);
+    if (!changed && !(guard_armed && board_tick_reached(guard_due)))
+        return; /* the usual step: nothing to look at */
+    coil_bits(bits);
+    if (changed && reporting) /* one report for every bit a step changed, first: it is news */
+        report(bits);
+    if (coil_guard(bits) && reporting) {
+        coil_bits(bits);
+        report(bits);
+    }
 }
