@@ -35,7 +35,7 @@ Handler = Callable[[str, bytes], None]
 
 #: The key of the flush barrier (a verbatim ``@`` chunk: no ``hexbot/**`` matches it), and how
 #: long a closing session waits for the answers of the processes that subscribe to it.
-FLUSH_KEY, FLUSH_TIMEOUT_S = f"{ROOT}/@flush", 10.0
+FLUSH_KEY, FLUSH_TIMEOUT_S = f"{ROOT}/@flush", 30.0
 
 
 @dataclass(eq=False)
@@ -324,7 +324,7 @@ class Bus:
 
     def flush(self) -> None:
         """Return once every other process subscribed to this session's samples holds all
-        that it put so far (at most 10 s)."""
+        that it put so far (at most FLUSH_TIMEOUT_S)."""
         self._hub.flush()
 
     def close(self) -> None:
