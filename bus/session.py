@@ -11,17 +11,24 @@ fleet over hosts, and ``--mode router`` runs a router for them. Security is zeno
 ``--zenoh-config FILE`` (a zenoh JSON5 configuration: TLS certificates, access control) is
 the base every option above is applied to. Listening beyond loopback without TLS is warned
 about: anyone who reaches the port can put on the fleet's keys.
+
+A ``--connect`` endpoint the session cannot reach is named with its cause, in one line
+(:func:`endpoint_problem`): nothing listens there, or something does but the TLS handshake
+failed. zenoh says only "Unable to connect" in client mode, and nothing in peer mode (a peer
+keeps trying), so the cause comes from a plain TCP probe of the endpoint.
 """
 
 from __future__ import annotations
 
 import json
+import socket
 import sys
+import time
 from dataclasses import dataclass, field
 
 import zenoh
 
-from .errors import UsageError
+from .errors import HexbenchError, UsageError
 
 WELL_KNOWN = "tcp/127.0.0.1:7557"
 
@@ -33,6 +40,7 @@ class SessionOptions:
     listen: list[str] = field(default_factory=list)
     isolated: bool = False  # tests: a private loopback peer that joins nobody
     config: str | None = None  # a zenoh JSON5 configuration file to start from
+    require_connect: bool = False  # a peer that reaches none of --connect fails (else: warned)
 
     @classmethod
     def from_args(cls, args: object) -> "SessionOptions":
@@ -44,7 +52,8 @@ class SessionOptions:
         virtual_alone = getattr(args, "clock", None) == "virtual" and not (connect or listen)
         return cls(mode=getattr(args, "mode", None) or "peer", connect=connect, listen=listen,
                    isolated=bool(getattr(args, "isolated", False)) or virtual_alone,
-                   config=getattr(args, "zenoh_config", None))
+                   config=getattr(args, "zenoh_config", None),
+                   require_connect=bool(getattr(args, "require_connect", False)))
 
 
 def _config(mode: str, listen: list[str], connect: list[str], base: str | None = None) -> zenoh.Config:
@@ -74,12 +83,100 @@ def open_session(opts: SessionOptions | None = None) -> zenoh.Session:
                 print(f"warning: listening on {ep} without TLS: anyone who reaches it can put on "
                       "the fleet's keys (world/inject, ir/tx/pc); use tls/... with --zenoh-config "
                       "(docs/bus.md)", file=sys.stderr)
-        return zenoh.open(_config(opts.mode, listen, opts.connect, base))
+        return _open_connected(opts, _config(opts.mode, listen, opts.connect, base))
     try:
         return zenoh.open(_config("peer", [WELL_KNOWN], [], base))
     except zenoh.ZError:
         # Someone on this machine already holds the well-known endpoint: join it.
         return zenoh.open(_config("peer", ["tcp/127.0.0.1:0"], [WELL_KNOWN], base))
+
+
+class ConnectError(HexbenchError):
+    """A ``--connect`` endpoint that could not be reached; the message names it and why."""
+
+
+def _open_connected(opts: SessionOptions, conf: zenoh.Config) -> zenoh.Session:
+    """Open a session with ``--connect`` endpoints and say, in one line, which it could not
+    reach and why: a client fails (:class:`ConnectError`); a peer or a router is warned about,
+    since zenoh keeps trying (with ``require_connect``, one that reaches none of them fails)."""
+    try:
+        session = zenoh.open(conf)
+    except zenoh.ZError as exc:
+        if opts.connect and "connect" in str(exc).lower():
+            raise ConnectError(_causes(opts.connect)) from None
+        raise
+    missing = _unreached(session, opts.connect) if opts.connect and opts.mode != "client" else []
+    if missing and opts.require_connect and len(missing) == len(opts.connect):
+        session.close()
+        raise ConnectError(_causes(missing))
+    if missing:
+        print(f"warning: {_causes(missing)} (zenoh keeps trying)", file=sys.stderr)
+    return session
+
+
+def _unreached(session: zenoh.Session, endpoints: list[str], wait_s: float = 1.5) -> list[str]:
+    """The ``endpoints`` ``session`` holds no link to after up to ``wait_s`` (a peer's open
+    waits half a second for its connections, a TLS handshake may take longer)."""
+    wanted = {ep: _addresses(ep) for ep in endpoints}
+    deadline = time.monotonic() + wait_s
+    while True:
+        linked = {str(link.dst).split("#")[0].split("?")[0] for link in session.info.links()}
+        missing = [ep for ep, addrs in wanted.items() if addrs is not None and not addrs & linked]
+        if not missing or time.monotonic() >= deadline:
+            return missing
+        time.sleep(0.05)
+
+
+def _causes(endpoints: list[str]) -> str:
+    return "; ".join(endpoint_problem(ep) for ep in endpoints)
+
+
+def _split(endpoint: str) -> tuple[str, str, int] | None:
+    """``tls/host:7447?x#y`` as (``tls``, ``host``, 7447); None for other forms."""
+    proto, _, rest = endpoint.split("#")[0].split("?")[0].partition("/")
+    host, _, port = rest.rpartition(":")
+    if not host or not port.isdigit():
+        return None
+    return proto, host.strip("[]"), int(port)
+
+
+def _addresses(endpoint: str) -> set[str] | None:
+    """The locators a link to ``endpoint`` shows as its ``dst`` (the host name resolved);
+    None when they cannot be told (a name that does not resolve is then reported as unreached)."""
+    parts = _split(endpoint)
+    if parts is None:
+        return None
+    proto, host, port = parts
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except OSError:
+        return set()
+    return {f"{proto}/{'[%s]' % a[4][0] if a[0] == socket.AF_INET6 else a[4][0]}:{port}" for a in infos}
+
+
+def endpoint_problem(endpoint: str, timeout_s: float = 2.0) -> str:
+    """Why a session could not reach ``endpoint``, in one line: a plain TCP connect tells
+    "nothing listens" from "something listens, but no zenoh session came of it" (for ``tls/``:
+    the TLS handshake was refused, most often a missing or wrong CA)."""
+    parts = _split(endpoint)
+    if parts is None or parts[0] not in ("tcp", "tls"):
+        return f"cannot connect to {endpoint}"
+    proto, host, port = parts
+    try:
+        with socket.create_connection((host, port), timeout=timeout_s):
+            pass
+    except socket.gaierror:
+        return f"cannot connect to {endpoint}: unknown host {host}"
+    except ConnectionRefusedError:
+        return f"nothing listens at {endpoint}"
+    except TimeoutError:
+        return f"cannot connect to {endpoint}: no answer in {timeout_s:g} s (host down or a firewall)"
+    except OSError as exc:
+        return f"cannot connect to {endpoint}: {exc.strerror or exc}"
+    if proto == "tls":
+        return f"cannot connect to {endpoint}: TLS handshake refused (check the CA in --zenoh-config)"
+    return (f"cannot connect to {endpoint}: something listens there but no zenoh session opened "
+            "(a TLS listener? then tls/...; or its --zenoh-config refused this one)")
 
 
 def _private(endpoint: str) -> bool:

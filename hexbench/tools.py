@@ -31,8 +31,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Like cansend: join a running fleet (or a hil bridge) over the "
                                    "bus as the PC, send one command frame on the centre channel, "
                                    "wait for the answer and print it decoded. Exit 0 for an ACK, "
-                                   "1 for 'N' (unknown code), 3 for no answer (or '~': the control "
-                                   "board did not echo), 2 for a bad command.")
+                                   "1 for 'N' (unknown code), 3 for no answer (a --connect endpoint "
+                                   "not reached, no fleet on the bus, or '~': the control board did "
+                                   "not echo), 2 for a bad command.")
     p.add_argument("function", help="name or code, e.g. SxP or 11")
     p.add_argument("args", nargs="*", type=int, help="argument bytes in Table 3-8 order")
     p.add_argument("--select", type=int, metavar="ID",
@@ -41,7 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--baud", type=int, default=300, help="IR baud rate (default 300)")
     p.add_argument("--clock", choices=["wall"], default="wall", help=argparse.SUPPRESS)
     add_bus_arguments(p)
-    p.set_defaults(func=cmd_send)
+    p.set_defaults(func=cmd_send, require_connect=True)  # a --connect not reached: said at once
 
     p = sub.add_parser("scenarios", help="list the built-in scenarios, or show one")
     p.add_argument("name", nargs="?", help="a built-in name or a .toml path to check and show")
@@ -125,6 +126,7 @@ SEND_ACK, SEND_UNKNOWN, SEND_TIMEOUT = 0, 1, 3
 def cmd_send(args: argparse.Namespace) -> int:
     """Join a running fleet (or a hil bridge) as the PC, send one frame, print the answer."""
     from bus.functions import ACK_TIMEOUT, ACK_UNKNOWN
+    from bus.session import ConnectError
     from planner_svc.endpoint import ExpectTimeout, PcEndpoint
 
     from .serial_pc import ask
@@ -132,7 +134,11 @@ def cmd_send(args: argparse.Namespace) -> int:
     frame = command_frame(args.function, args.args)
     if args.clock != "wall":
         raise UsageError("send talks to a fleet in another process: only --clock wall")
-    bus = open_bus(args)
+    try:
+        bus = open_bus(args)
+    except ConnectError as exc:  # nothing listens there, or the TLS handshake failed
+        print(f"hexbench send: {exc}", file=sys.stderr)
+        return SEND_TIMEOUT
     try:
         pc = PcEndpoint(bus, baud=args.baud)
         if not bus.wait_remote(bus.keys.ir_tx(pc.name), timeout_s=args.timeout):

@@ -8,9 +8,9 @@ import shutil
 import subprocess
 
 import pytest
-import zenoh
 
 from bus import SessionOptions, UsageError, WallClock
+from bus.session import ConnectError
 from bus.transport import Bus
 from hexbench.cli import main
 from processes import free_port
@@ -58,7 +58,7 @@ def _admits_and_refuses(fleet: str, server_conf: str, member_conf: str,
         client.put(f"hexbot/{fleet}/world/sync", b"{}")
         server.clock.run(until=lambda: got, timeout_s=10)
         assert got == [b"{}"]
-        with pytest.raises(zenoh.ZError, match="Unable to connect"):  # the handshake fails
+        with pytest.raises(ConnectError, match=f"cannot connect to {endpoint}: TLS handshake refused"):
             Bus(WallClock(), fleet, options=SessionOptions(mode="client", connect=[endpoint],
                                                            config=outsider_conf))
     finally:
@@ -135,3 +135,43 @@ def test_a_bad_config_file_and_an_open_listener_are_said_plainly(tmp_path, capsy
     assert "warning" not in capsys.readouterr().err  # loopback: nobody else reaches it
     assert main(["monitor", "--zenoh-config", str(tmp_path / "nope.json5"), "--seconds", "0.1"]) == 2
     assert "hexbench monitor: error: --zenoh-config" in capsys.readouterr().err
+
+
+def test_a_connection_that_fails_is_named_with_its_endpoint_and_cause(tmp_path, capsys):
+    """Without the CA a participant is told the TLS handshake was refused, not that no fleet
+    listens; at a port nobody holds, that nothing listens there. Either way at once, and
+    non-zero: ``send`` (a peer) exits 3, a client fails (1) in one line."""
+    import time
+
+    conf = _certs(tmp_path)
+    endpoint = f"tls/localhost:{free_port()}"
+    server = Bus(WallClock(), "refused", options=SessionOptions(listen=[endpoint], config=conf["server"]))
+    nobody = f"tcp/127.0.0.1:{free_port()}"
+    try:
+        cases = [(["send", "LOn", "--timeout", "30", "--connect", endpoint], 3,
+                  f"hexbench send: cannot connect to {endpoint}: TLS handshake refused (check the CA "
+                  "in --zenoh-config)"),
+                 (["send", "LOn", "--timeout", "30", "--connect", nobody], 3,
+                  f"hexbench send: nothing listens at {nobody}"),
+                 (["monitor", "--mode", "client", "--seconds", "30", "--connect", endpoint], 1,
+                  f"hexbench monitor: error: cannot connect to {endpoint}: TLS handshake refused"),
+                 (["monitor", "--mode", "client", "--seconds", "30", "--connect", nobody], 1,
+                  f"hexbench monitor: error: nothing listens at {nobody}")]
+        for argv, code, line in cases:
+            start = time.monotonic()
+            assert main([*argv, "--fleet", "refused"]) == code, argv
+            assert time.monotonic() - start < 10, argv  # not the 30 s of --timeout / --seconds
+            err = capsys.readouterr().err
+            assert err.startswith(line) and len(err.strip().splitlines()) == 1, err
+            assert "no fleet or bridge listens" not in err
+        # with the CA the same peer reaches the listener (require_connect: it would raise)
+        Bus(WallClock(), "refused", options=SessionOptions(connect=[endpoint], config=conf["client"],
+                                                           require_connect=True)).close()
+    finally:
+        server.close()
+
+
+def test_a_peer_that_reaches_nobody_is_warned_and_keeps_going(capsys):
+    nobody = f"tcp/127.0.0.1:{free_port()}"
+    assert main(["monitor", "--connect", nobody, "--seconds", "0.1"]) == 0
+    assert f"warning: nothing listens at {nobody} (zenoh keeps trying)" in capsys.readouterr().err
