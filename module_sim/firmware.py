@@ -12,12 +12,18 @@ UARTs' hooks (so frames, IR bursts and the other board's UART0 see them too).
 
 One library serves every board of its kind: all the program's memory is one block that
 each driver keeps a copy of and the step swaps in and out (firmware/host/board_host.c).
+
+A step that makes more events than the library's buffers hold (HEXBOT_MAX_EVENTS,
+HEXBOT_MAX_BYTES) hands them over on the way (``hexbot_flush``): the driver replays them at
+once and the step goes on. Nothing is lost; should the library ever count a lost event
+(``hexbot_io.overflow``), the step fails with a :class:`FirmwareError` naming the board.
 """
 
 from __future__ import annotations
 
 import ctypes
 import struct
+from pathlib import Path
 from typing import Callable
 
 from bus.cheader import FirmwareError, build_path, ensure_built
@@ -28,6 +34,7 @@ from .avr import Mcu
 _EV_PORT, _EV_TX = 1, 2
 _EVENT = struct.Struct("<BBBBHH")  # hexbot_event_t
 _MAX_EVENTS, _MAX_BYTES = 256, 1024
+_FLUSH = ctypes.CFUNCTYPE(None)  # hexbot_flush_fn
 
 
 class _Event(ctypes.Structure):
@@ -41,19 +48,22 @@ class _Io(ctypes.Structure):
     _fields_ = [("wake", ctypes.c_uint64), ("rx", (ctypes.c_uint8 * 4) * 2),
                 ("rx_n", ctypes.c_uint8 * 2), ("rx_used", ctypes.c_uint8 * 2),
                 ("n_events", ctypes.c_uint16), ("n_bytes", ctypes.c_uint16),
+                ("overflow", ctypes.c_uint16), ("pad", ctypes.c_uint16),
                 ("events", _Event * _MAX_EVENTS), ("bytes", ctypes.c_uint8 * _MAX_BYTES),
                 ("starts", ctypes.c_uint64 * _MAX_BYTES)]
 
 
 class Program:
-    """One board's program in one profile: the loaded host library."""
+    """One board's program in one profile: the loaded host library (``path``: another
+    library built with the host board layer, e.g. a test's)."""
 
     _loaded: dict[tuple[str, str], "Program"] = {}
 
-    def __init__(self, board: str, profile: str) -> None:
-        path = build_path("lib", board, profile)
-        if not path.exists():
-            ensure_built()
+    def __init__(self, board: str, profile: str, path: Path | None = None) -> None:
+        if path is None:
+            path = build_path("lib", board, profile)
+            if not path.exists():
+                ensure_built()
         try:
             lib = ctypes.CDLL(str(path))
         except OSError as exc:
@@ -65,12 +75,31 @@ class Program:
         lib.hexbot_step.argtypes = [ctypes.c_void_p, ctypes.c_uint64]
         for f in (lib.hexbot_setup, lib.hexbot_set_pins, lib.hexbot_step):
             f.restype = None
+        self.lib = lib
         self.setup, self.set_pins, self.step = lib.hexbot_setup, lib.hexbot_set_pins, lib.hexbot_step
         self.io = _Io.in_dll(lib, "hexbot_io")
         self.events = memoryview(self.io.events).cast("B")  # 8 bytes an event
+        #: the driver whose step runs (the library's buffers are its events until replayed)
+        self.stepping: FirmwareDriver | None = None
+        self._flush = _FLUSH(self._flushed)  # kept: the library calls it
+        try:
+            hook = ctypes.c_void_p.in_dll(lib, "hexbot_flush")
+        except ValueError:
+            raise FirmwareError(f"{path} is older than firmware/host (no hexbot_flush): "
+                                "make -C firmware host") from None
+        hook.value = ctypes.cast(self._flush, ctypes.c_void_p).value
         self.size = lib.hexbot_state_size()
         self.power_on = ctypes.create_string_buffer(self.size)
         lib.hexbot_state_init(self.power_on)  # before any step: the image at power-up
+
+    def _flushed(self) -> None:
+        """The library's buffers are full in the middle of a step: replay what they hold."""
+        driver = self.stepping
+        if driver is not None and driver._failure is None:
+            try:
+                driver._replay()
+            except BaseException as exc:  # raised again once the step returns (not into C)
+                driver._failure = exc
 
     @classmethod
     def get(cls, board: str, profile: str) -> "Program":
@@ -95,6 +124,7 @@ class FirmwareDriver:
         self._state = ctypes.addressof(self.state)
         self._timer = None
         self._wake_at = 0
+        self._failure: BaseException | None = None
         self.steps = 0
 
     def power_up(self) -> None:
@@ -134,29 +164,45 @@ class FirmwareDriver:
             io.rx_n[1] = n = min(len(rx1), 4)
             for k in range(n):
                 io.rx[1][k] = rx1[k]
-        prog.step(self._state, mcu.clock.now_ns())
+        prog.stepping = self
+        try:
+            prog.step(self._state, mcu.clock.now_ns())
+        finally:
+            prog.stepping = None
         self.steps += 1
+        failure, self._failure = self._failure, None
+        if failure is not None:
+            raise failure
+        if io.overflow:
+            raise FirmwareError(f"{mcu.name}: the firmware's step made more events than the host "
+                                f"board layer holds; {io.overflow} lost (firmware/host/board_host.c)")
         used = io.rx_used
         for _ in range(used[0]):
             rx0.popleft()
         for _ in range(used[1]):
             rx1.popleft()
-        n = io.n_events
-        if n:
-            for kind, a, v, _, offset, _ in _EVENT.iter_unpack(prog.events[:8 * n]):
-                if kind == _EV_PORT:
-                    mcu.firmware_port_write(PORTS[a], v)
-                else:
-                    hook = self._uarts[a].on_tx
-                    if hook is not None:
-                        hi = offset + v
-                        hook(bytes(io.bytes[offset:hi]), io.starts[offset:hi])
+        self._replay()
         wake = io.wake
         if wake != self._wake_at:  # a new wake-up time (an unchanged one stays booked)
             if self._timer is not None:
                 self._timer.cancel()
             self._timer = mcu.clock.call_at(wake, self._woken) if wake else None
             self._wake_at = wake
+
+    def _replay(self) -> None:
+        """What the program did, in order: port writes through the Mcu, transmissions
+        through the UARTs' hooks."""
+        io, prog = self.program.io, self.program
+        n = io.n_events
+        if n:
+            for kind, a, v, _, offset, _ in _EVENT.iter_unpack(prog.events[:8 * n]):
+                if kind == _EV_PORT:
+                    self.mcu.firmware_port_write(PORTS[a], v)
+                else:
+                    hook = self._uarts[a].on_tx
+                    if hook is not None:
+                        hi = offset + v
+                        hook(bytes(io.bytes[offset:hi]), io.starts[offset:hi])
 
     def _woken(self) -> None:
         self._timer = None

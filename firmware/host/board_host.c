@@ -58,6 +58,30 @@ uint8_t board_rx_read(uint8_t uart)
     return board_rx_ready(uart) ? hexbot_io.rx[uart][hexbot_io.rx_used[uart]++] : 0;
 }
 
+/* The next event of the step (n: the port's value, or the burst's length), with room for
+ * `bytes` bytes after it. When the buffers are full the simulator takes what they hold first
+ * (hexbot_flush); with nobody to take them the event is counted as lost (hexbot_io.overflow)
+ * and NULL returned: never dropped unseen. */
+static hexbot_event_t *new_event(uint8_t kind, uint8_t a, uint8_t n, uint8_t bytes)
+{
+    if (hexbot_io.n_events >= HEXBOT_MAX_EVENTS || hexbot_io.n_bytes + bytes > HEXBOT_MAX_BYTES) {
+        if (!hexbot_flush) {
+            if (hexbot_io.overflow < UINT16_MAX)
+                hexbot_io.overflow++;
+            return NULL;
+        }
+        hexbot_flush();
+        hexbot_io.n_events = 0;
+        hexbot_io.n_bytes = 0;
+    }
+    hexbot_event_t *e = &hexbot_io.events[hexbot_io.n_events++];
+    e->kind = kind;
+    e->a = a;
+    e->n = n;
+    e->offset = hexbot_io.n_bytes;
+    return e;
+}
+
 /* Uart.write: each byte waits for UDR, then for the line; returns when the last byte is in
  * UDR. The burst is one event, as the model's program hands it over in one Tx. */
 static uint64_t line_write(uint8_t uart, const uint8_t *data, uint8_t flash, uint8_t n)
@@ -65,13 +89,7 @@ static uint64_t line_write(uint8_t uart, const uint8_t *data, uint8_t flash, uin
     uint64_t w = now;
     if (!n)
         return w;
-    if (hexbot_io.n_events >= HEXBOT_MAX_EVENTS || hexbot_io.n_bytes + n > HEXBOT_MAX_BYTES)
-        return w; /* the simulator empties these after every step: cannot happen */
-    hexbot_event_t *e = &hexbot_io.events[hexbot_io.n_events++];
-    e->kind = HEXBOT_EV_TX;
-    e->a = uart;
-    e->n = n;
-    e->offset = hexbot_io.n_bytes;
+    hexbot_event_t *e = new_event(HEXBOT_EV_TX, uart, n, n);
     for (uint8_t k = 0; k < n; k++) {
         uint64_t start;
         if (udr_free_at[uart] > w)
@@ -79,8 +97,10 @@ static uint64_t line_write(uint8_t uart, const uint8_t *data, uint8_t flash, uin
         start = w > line_free_at[uart] ? w : line_free_at[uart];
         udr_free_at[uart] = start;
         line_free_at[uart] = start + byte_ns[uart];
-        hexbot_io.bytes[hexbot_io.n_bytes] = flash ? fw_byte(&data[k]) : data[k];
-        hexbot_io.starts[hexbot_io.n_bytes++] = start;
+        if (e) {
+            hexbot_io.bytes[hexbot_io.n_bytes] = flash ? fw_byte(&data[k]) : data[k];
+            hexbot_io.starts[hexbot_io.n_bytes++] = start;
+        }
     }
     return w;
 }
@@ -128,13 +148,7 @@ void board_port_write(uint8_t p, uint8_t value)
     if (port[p] == value)
         return;
     port[p] = value;
-    if (hexbot_io.n_events < HEXBOT_MAX_EVENTS) {
-        hexbot_event_t *e = &hexbot_io.events[hexbot_io.n_events++];
-        e->kind = HEXBOT_EV_PORT;
-        e->a = p;
-        e->n = value;
-        e->offset = 0;
-    }
+    new_event(HEXBOT_EV_PORT, p, value, 0);
 }
 
 uint8_t board_pins(uint8_t p)
@@ -189,6 +203,7 @@ void hexbot_step(void *state, uint64_t t)
     hexbot_io.wake = 0;
     hexbot_io.n_events = 0;
     hexbot_io.n_bytes = 0;
+    hexbot_io.overflow = 0;
     hexbot_io.rx_used[0] = hexbot_io.rx_used[1] = 0;
     program_step();
     memcpy(state, __start_hexbot_state, hexbot_state_size());

@@ -1,6 +1,7 @@
 /* The host library's interface to the simulator (module_sim/firmware.py mirrors it with
  * ctypes): per step, the received bytes go in, port writes and transmissions come out in
- * the order the program made them, with the time it wants to be stepped again. */
+ * the order the program made them, with the time it wants to be stepped again. A step that
+ * makes more than the buffers hold hands them over on the way (hexbot_flush): none is lost. */
 #ifndef HEXBOT_HOST_H
 #define HEXBOT_HOST_H
 
@@ -28,12 +29,20 @@ typedef struct {
     uint8_t rx_used[2]; /* how many the step read */
     uint16_t n_events;
     uint16_t n_bytes;
+    uint16_t overflow;  /* events of the step lost: the buffers were full, no hexbot_flush */
+    uint16_t pad;
     hexbot_event_t events[HEXBOT_MAX_EVENTS];
     uint8_t bytes[HEXBOT_MAX_BYTES];
     uint64_t starts[HEXBOT_MAX_BYTES]; /* start bit of each byte (ns) */
 } hexbot_io_t;
 
 extern hexbot_io_t hexbot_io;
+
+/* Called in a step whose events or bytes fill the buffers: the simulator takes what they hold
+ * (as after the step), then the step goes on with them empty. NULL: what does not fit is
+ * counted in hexbot_io.overflow, not kept. */
+typedef void (*hexbot_flush_fn)(void);
+extern hexbot_flush_fn hexbot_flush;
 
 size_t hexbot_state_size(void);
 void hexbot_state_init(void *state);

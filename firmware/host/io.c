@@ -2,3 +2,4 @@
 #include "hexbot_host.h"
 
 hexbot_io_t hexbot_io;
+hexbot_flush_fn hexbot_flush;
