@@ -929,7 +929,15 @@ int main(int argc, char **argv)
 	avr_cycle_count_t end = opt.seconds > 0 ? (avr_cycle_count_t)(opt.seconds * F_CPU + 0.5)
 						 : ~(avr_cycle_count_t)0;
 	uint64_t t0 = mono_ns(), max_lag = 0;
+	/* The process that started us (in a session of its own, so a terminal's Ctrl-C does not
+	 * reach us twice) may die without a word (SIGKILL): then nobody would ever stop us. */
+	pid_t parent = getppid();
+	unsigned long slices = 0;
 	while (!stop_signal) {
+		if (!opt.fast && (++slices & 255) == 0 && getppid() != parent) {
+			fprintf(stderr, "hexbot-simavr: the process that started us is gone; stopping\n");
+			break;
+		}
 		avr_cycle_count_t now = now_global();
 		if (now == ~(avr_cycle_count_t)0 || now >= end)
 			break;
