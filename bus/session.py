@@ -91,6 +91,14 @@ def open_session(opts: SessionOptions | None = None) -> zenoh.Session:
         return zenoh.open(_config("peer", ["tcp/127.0.0.1:0"], [WELL_KNOWN], base))
 
 
+def free_port(host: str = "127.0.0.1") -> int:
+    """A TCP port on ``host`` nobody listens on now (the kernel's choice), for a zenoh listener
+    (``tcp/127.0.0.1:<port>``). Nothing holds it: bind it soon."""
+    with socket.socket() as s:
+        s.bind((host, 0))
+        return s.getsockname()[1]
+
+
 class ConnectError(HexbenchError):
     """A ``--connect`` endpoint that could not be reached; the message names it and why."""
 

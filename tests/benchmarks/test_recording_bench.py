@@ -21,7 +21,7 @@ import zenoh
 from bus.clock import WallClock
 from bus.codec import Link, encode_ack, encode_command, encode_msg1, encode_relay, parse
 from bus.envelope import Envelope
-from bus.session import SessionOptions, open_session
+from bus.session import SessionOptions, free_port, open_session
 from bus.transport import Bus
 from recordings.reader import summary
 from recordings.recorder import Recorder
@@ -84,10 +84,7 @@ def test_end_to_end_rate_over_zenoh(tmp_path):
     n = 200_000
     payloads = _payloads(n)
     # The recorder's Bus listens on a free port; the publisher session connects to it.
-    import socket
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    port = free_port()
     clock = WallClock()
     bus = Bus(clock, "bench", options=SessionOptions(listen=[f"tcp/127.0.0.1:{port}"]))
     rec = Recorder(tmp_path / "e2e.mcap", fleet="bench")

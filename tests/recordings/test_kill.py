@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import selectors
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -13,16 +12,10 @@ import pytest
 
 from bus.codec import Link, encode_msg1, parse
 from bus.envelope import Envelope
-from bus.session import SessionOptions, open_session
+from bus.session import SessionOptions, free_port, open_session
 from recordings.reader import read_frames, summary
 
 FLEET = "killtest"
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _wait_for_line(proc: subprocess.Popen, prefix: str, timeout_s: float) -> str:
@@ -49,7 +42,7 @@ def _poll(cond, timeout_s: float, what: str) -> None:
 
 @pytest.mark.slow
 def test_sigkill_loses_at_most_the_last_second(tmp_path):
-    port = _free_port()
+    port = free_port()
     out = tmp_path / "kill.mcap"
     proc = subprocess.Popen(
         [sys.executable, "-m", "hexbench", "record", "--fleet", FLEET, "--listen", f"tcp/127.0.0.1:{port}",

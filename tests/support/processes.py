@@ -6,6 +6,8 @@ import os
 import subprocess
 import sys
 
+from bus.session import free_port  # noqa: F401  (the tests' ports: one function with the application's)
+
 
 def hexbench(*args: str) -> subprocess.Popen:
     """``python -m hexbench ARGS`` with its output in a pipe (unbuffered: lines as they come)."""
@@ -24,15 +26,6 @@ def wall_fleet(scenario: str, port: int, fleet: str, seconds: float = 60) -> sub
         proc.kill()
         raise AssertionError(f"the fleet did not start: {line}{proc.communicate()[0]}")
     return proc
-
-
-def free_port() -> int:
-    """A TCP port nobody listens on now (the kernel's choice), for a zenoh listener."""
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def run_in_pty(args: list[str], *, timeout_s: float = 120, columns: int = 120, lines: int = 40) -> tuple[int, bytes]:
