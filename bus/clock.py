@@ -212,6 +212,29 @@ class WallClock(Clock):
         self._offset = time.time_ns() - time.monotonic_ns()
         self.started_ns = self.now_ns()
         self._due: int | None = None  # the due time of the timer running now
+        # Lateness (:meth:`take_lateness`): the worst since the last take, and over the clock's life.
+        self._running_since = 0  # now_ns() when run() was last entered
+        self._late_timer_ns = 0
+        self._late_delivery_ns = 0
+        self.worst_late_ns = 0
+
+    def post(self, fn: Callable[..., Any], *args: Any, order: tuple[float, int] | None = None) -> None:
+        # In the order they come (``order`` sorts only a virtual clock's inbox); the key of
+        # each is when it was posted, for its lateness.
+        with self._lock:
+            self._inbox.append((self.now_ns(), fn, args))
+            self._lock.notify()
+
+    def take_lateness(self) -> tuple[int, int]:
+        """How late this clock ran its work since the last call, in ns: the worst timer (run
+        after its due time) and the worst delivery (a sample handled after it was posted).
+        Counted from when the clock was last set running if that is later: work that waited
+        for the clock's owner to run it (a planner planning between its waits) did not wait
+        for the machine."""
+        with self._lock:
+            late = self._late_timer_ns, self._late_delivery_ns
+            self._late_timer_ns = self._late_delivery_ns = 0
+        return late
 
     def due_ns(self) -> int:
         return self.now_ns() if self._due is None else self._due
@@ -237,11 +260,15 @@ class WallClock(Clock):
             timeout_s: float | None = None) -> None:
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         self._stopped = False
+        since = self._running_since = self.now_ns()
         while True:
             with self._lock:
                 batch = self._inbox
                 self._inbox = []
-            for _, fn, args in batch:
+            for posted, fn, args in batch:
+                late = self.now_ns() - (posted if posted > since else since)
+                if late > self._late_delivery_ns:
+                    self._note_late(late, timer=False)
                 self._fire(fn, args)
             if self._stopped or (until is not None and until()):
                 return
@@ -267,6 +294,9 @@ class WallClock(Clock):
                         wait = min(wait, left)
                     self._lock.wait(max(wait, 0.0))
             if due is not None:
+                late = now - (due.t_ns if due.t_ns > since else since)
+                if late > self._late_timer_ns:
+                    self._note_late(late, timer=True)
                 self._due = due.t_ns
                 try:
                     self._fire(due.fn, due.args)
@@ -274,6 +304,14 @@ class WallClock(Clock):
                     self._due = None
             elif deadline is not None and time.monotonic() > deadline:
                 return
+
+    def _note_late(self, late_ns: int, *, timer: bool) -> None:
+        with self._lock:
+            if timer:
+                self._late_timer_ns = max(self._late_timer_ns, late_ns)
+            else:
+                self._late_delivery_ns = max(self._late_delivery_ns, late_ns)
+            self.worst_late_ns = max(self.worst_late_ns, late_ns)
 
 
 def make_clock(kind: str) -> Clock:

@@ -7,9 +7,18 @@ recorder (``hexbench record``) joins the same fleet over zenoh.
 from __future__ import annotations
 
 import argparse
+import os
 import signal
+import time
+from typing import Any, Callable
 
 from bus import UsageError, add_bus_arguments, open_bus
+
+#: The console says a fleet's lag at most this often (the first time at once).
+LAG_SAY_EVERY_S = 30.0
+#: Tests only: ``K=CODE`` makes shard K exit with CODE once its run is over, as a shard that
+#: fails after the last window would (tests/world/test_sharded_run.py).
+SHARD_EXIT_ENV = "HEXBENCH_TEST_SHARD_EXIT"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -61,6 +70,8 @@ def cmd_fleet(args: argparse.Namespace) -> int:
         virtual = sum(1 for m in sc.modules if m.kind == "virtual")
         print(f"fleet {sc.name}: {virtual} virtual module(s), profile {sc.profile}, clock "
               f"{args.clock}, keys {bus.keys.all}", flush=True)
+        if args.clock == "wall":
+            LagNotice(bus)
         signal.signal(signal.SIGTERM, lambda *_: clock.stop())
         try:
             if args.clock == "virtual":
@@ -113,7 +124,13 @@ def _shard(args: argparse.Namespace, sc) -> int:
         if step is not None:
             step.close()
         bus.close()
-    return 0
+    return _test_exit_code(k)
+
+
+def _test_exit_code(k: int) -> int:
+    """0, or what :data:`SHARD_EXIT_ENV` says shard ``k`` ends with."""
+    shard, _, code = os.environ.get(SHARD_EXIT_ENV, "").partition("=")
+    return int(code) if shard == str(k) and code else 0
 
 
 def check_shardable(sc, n: int) -> None:
@@ -127,3 +144,39 @@ def check_shardable(sc, n: int) -> None:
     if sc.bit_error_rate:
         raise UsageError(f"scenario {sc.name!r} has a bit error rate: its seeded noise follows the order "
                          "light arrives in, which shards change; run it in one process")
+
+
+class LagNotice:
+    """A fleet's ``lag`` events (``event/fleet``, :class:`module_sim.fleet.LagWatch`) said on
+    the console, at most once every :data:`LAG_SAY_EVERY_S`; the worst of them for a failure
+    line (:meth:`cause`)."""
+
+    def __init__(self, bus: Any, say: Callable[[str], None] | None = None) -> None:
+        from module_sim.fleet import LAG_SRC
+
+        self.say = say or (lambda line: print(line, flush=True))
+        self.worst_ns = 0
+        self._said_at: float | None = None
+        bus.subscribe_json(bus.keys.event(LAG_SRC), self._on_event)
+
+    def _on_event(self, key: str, d: dict) -> None:
+        if d.get("kind") != "lag":
+            return
+        late, timers, deliveries = int(d["late_ns"]), int(d["timer_late_ns"]), int(d["delivery_late_ns"])
+        self.worst_ns = max(self.worst_ns, late)
+        now = time.monotonic()
+        if self._said_at is not None and now - self._said_at < LAG_SAY_EVERY_S:
+            return
+        self._said_at = now
+        self.say(f"lag: the fleet ran {late / 1e6:.0f} ms behind the wall clock (timers up to "
+                 f"{timers / 1e6:.0f} ms late, deliveries {deliveries / 1e6:.0f} ms; more than "
+                 f"{int(d['threshold_ns']) / 1e6:.0f} ms is lag): the machine is overloaded, and a "
+                 "timeout from now on may be this rather than a protocol fault")
+
+    def cause(self) -> str:
+        """`` (the fleet ran up to 85 ms behind the wall clock: the machine was overloaded)``
+        for a failure line, or "" if it never fell behind."""
+        if not self.worst_ns:
+            return ""
+        return (f" (the fleet ran up to {self.worst_ns / 1e6:.0f} ms behind the wall clock: the "
+                "machine was overloaded)")

@@ -4,19 +4,35 @@
 (with ``--record``) the MCAP recorder on one bus and runs to the goal. ``hexbench planner
 <scenario>`` is the planner service alone: it joins a fleet started elsewhere
 (``hexbench fleet <scenario> --clock wall``) over zenoh.
+
+:func:`cmd_run` reads as its steps: the options checked (:func:`_options`), the bus opened,
+the set-up (:func:`_set_up`), the planner service's run, the end (:func:`_end`: shards, the
+last samples, the summary). One ``ExitStack`` closes whatever was opened, in reverse order.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import subprocess
 import sys
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from bus import UsageError, add_bus_arguments, open_bus
+from bus import HexbenchError, UsageError, add_bus_arguments, open_bus
+from bus.session import free_port
 
 from .args import instant
+from .fleet import LagNotice
 from .live import add_live_argument, start_live
 from .progress import Progress, phase_sayer
+
+if TYPE_CHECKING:
+    from bus import Bus, Scenario
+    from bus.lockstep import Lockstep
+    from module_sim.fleet import Fleet
+    from planner_svc.service import PlannerService
 
 
 def add_run_arguments(p: argparse.ArgumentParser, *, with_fleet: bool) -> None:
@@ -75,9 +91,9 @@ def _scenario(args: argparse.Namespace):
         raise UsageError(str(exc)) from None
 
 
-def _start_firmware(scenario, started: list):
-    """Start the simavr harness of every firmware module; from then on each is a real board
-    on the harness's two ptys (``started`` collects them, for closing)."""
+def _start_firmware(scenario, stack: contextlib.ExitStack):
+    """Start the simavr harness of every firmware module (closed with ``stack``); from then on
+    each is a real board on the harness's two ptys."""
     import dataclasses
 
     from hil.firmware import FirmwareModule
@@ -86,7 +102,7 @@ def _start_firmware(scenario, started: list):
     for m in scenario.modules:
         if m.kind == "firmware":
             fw = FirmwareModule(m.id, scenario.profile).start()
-            started.append(fw)
+            stack.callback(fw.close)
             print(f"firmware: m{m.id} ({scenario.profile}) in simavr, IR on {fw.ir_path}, "
                   f"debug on {fw.debug_path}", flush=True)
             m = dataclasses.replace(m, kind="real", port=fw.ir_path, debug_port=fw.debug_path)
@@ -169,10 +185,50 @@ def _timing(text: str) -> tuple[int, int, int]:
 DRAIN_S = 5.0
 
 
+@dataclass(frozen=True)
+class RunOptions:
+    """What a run was asked, checked (:func:`_options`); the command's ``args`` stay as given."""
+
+    scenario: Scenario
+    planner: str
+    timing: tuple[int, int, int]
+    with_fleet: bool  # False: ``hexbench planner``, joining a fleet elsewhere
+    record: Path | None  # --compare-model without --record: a file of its own
+    compare: bool
+    shards: int | None
+    bus_args: argparse.Namespace  # the options the bus and the shards open with
+
+
+@dataclass
+class RunParts:
+    """What :func:`_set_up` started: for the run and its end."""
+
+    bus: Bus
+    service: PlannerService
+    since_ns: int  # the clock when the run began
+    lag: LagNotice | None = None  # a wall clock: the fleet's lag, here or elsewhere
+    fleet: Fleet | None = None  # the fleet in this process
+    checks: list = field(default_factory=list)  # live differentials of real modules with their twins
+    step: Lockstep | None = None  # --shards: this process's side of the lockstep clock
+    shards: list = field(default_factory=list)  # --shards: their processes
+
+
 def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
-    from bus.messages import RunMeta
+    opts = _options(args, with_fleet)  # a UsageError before anything is opened
+    with contextlib.ExitStack() as stack:  # everything the run opens, closed in reverse order
+        bus = _open_bus(opts, stack)
+        with Progress() as progress:  # a bar on a terminal, cleared before the summary lines
+            parts = _set_up(opts, args, bus, stack, progress)
+            result = parts.service.run(parts.since_ns)
+        _end(parts, result)
+    if opts.compare:
+        return _compare_model(args, opts.record, result.ok)
+    return 0 if result.ok else 1
+
+
+def _options(args: argparse.Namespace, with_fleet: bool) -> RunOptions:
+    """Check the command's options against each other and the scenario."""
     from planner_svc import planners
-    from planner_svc.service import PlannerService
 
     scenario = _scenario(args)
     if not args.planner.startswith(planners.SCRIPT_PREFIX):
@@ -195,113 +251,116 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
     if compare and (scenario.program != "firmware" or args.clock != "virtual"):
         raise UsageError("--compare-model compares a firmware run with a model run on the virtual "
                          "clock: give --program firmware --clock virtual")
-    if compare and not args.record:
-        import tempfile
-        args.record = Path(tempfile.mkdtemp(prefix="hexbench-compare")) / "firmware.mcap"
     shards = getattr(args, "shards", None)
+    bus_args = args
     if shards is not None:
         from .fleet import check_shardable
         if args.clock != "virtual":
             raise UsageError("--shards spreads a virtual run over processes: give --clock virtual")
         check_shardable(scenario, shards)
         if not (args.connect or args.listen):  # the shards join this process on loopback
-            args.listen = [f"tcp/127.0.0.1:{_free_port()}"]
+            bus_args = argparse.Namespace(**{**vars(args), "listen": [f"tcp/127.0.0.1:{free_port()}"]})
+    record = getattr(args, "record", None) if with_fleet else None
+    if compare and record is None:
+        import tempfile
+        record = Path(tempfile.mkdtemp(prefix="hexbench-compare")) / "firmware.mcap"
+    return RunOptions(scenario, args.planner, timing, with_fleet, record, compare, shards, bus_args)
+
+
+def _open_bus(opts: RunOptions, stack: contextlib.ExitStack) -> Bus:
+    """The run's bus (closed last); a sharded run's on a lockstep clock."""
+    clock = None
+    if opts.shards is not None:
         from bus.lockstep import LockstepClock
-        bus = open_bus(args, LockstepClock())
-    else:
-        bus = open_bus(args)
-    clock = bus.clock
-    recorder = None
-    lives: list = []
-    bridges: list = []
-    checks: list = []
-    firmware: list = []
-    children: list = []
-    step = None
-    progress = Progress().__enter__()  # a bar on a terminal; ended before the summary lines
+        clock = LockstepClock()
+    bus = open_bus(opts.bus_args, clock)
+    stack.callback(bus.close)
+    return bus
+
+
+def _set_up(opts: RunOptions, args: argparse.Namespace, bus: Bus, stack: contextlib.ExitStack,
+            progress: Progress) -> RunParts:
+    """Firmware harnesses, the recorder, live views, the planner service, then the fleet: here,
+    in shard processes, or elsewhere (``hexbench planner``). What is opened closes with ``stack``."""
+    from bus.messages import RunMeta
+    from planner_svc.service import PlannerService
+
     bus.subscribe(bus.keys.planner("progress"), progress.on_planner_progress)
-    try:
-        if with_fleet:
-            scenario = _start_firmware(scenario, firmware)
-        meta = RunMeta(scenario.name, scenario.profile, scenario.seed, args.planner, args.clock,
-                       list(sys.argv), {}, fleet=args.fleet)
-        if with_fleet and args.record:
-            from recordings.recorder import Recorder
-            recorder = Recorder(args.record, fleet=args.fleet, meta=meta, start_ns=getattr(args, "start_time", None))
-            recorder.attach(bus)
-        lives = start_live(args.live, bus, meta=meta.to_dict())
-        bus.put(bus.keys.meta, meta.to_json())
-        since = clock.now_ns()
-        progress.say(f"run: scenario {scenario.name} ({len(scenario.modules)} modules, profile "
-                     f"{scenario.profile}, seed {scenario.seed}), planner {args.planner}, clock {args.clock}"
-                     + (f", faults {', '.join(map(str, scenario.faults))}" if scenario.faults else ""))
-        progress.phase("boot")
-        service = PlannerService(bus, scenario, args.planner, timing=timing, say=phase_sayer(progress))
-        if shards is not None:
-            step = _start_shards(args, bus, scenario, shards, children, progress)
-        elif with_fleet:  # after the service subscribed: it sees the world's first poses
-            from module_sim.fleet import Fleet
-            bridges.extend(_bridges(bus, scenario, getattr(args, "hil_port", None)))
-            fleet = Fleet(bus, scenario)
-            checks = _twin_checks(bus, scenario, fleet, bridges, getattr(args, "hil_port", None))
-            fleet.power_up()
-        result = service.run(since)
-        progress.__exit__()
-        if step is not None:
-            step.finish()  # every shard stops at this window's end
-            _end_shards(children)
-        elif with_fleet:
-            fleet.world.mechanics.publish_run_energy()
-            if not clock.drain(timeout_s=DRAIN_S):
-                print(f"warning: some bus samples had not arrived after {DRAIN_S:g} s; the "
-                      "recording may lack the last of them", flush=True)
-        for check in checks:
-            print(check.summary(), flush=True)
-        print(result.summary(), flush=True)
-    finally:
-        progress.__exit__()
-        if step is not None:
-            step.close()
-        for child in children:  # a failed run: no shard outlives it
-            if child.poll() is None:
-                child.terminate()
-        for close in lives:
-            close()
+    scenario = _start_firmware(opts.scenario, stack) if opts.with_fleet else opts.scenario
+    meta = RunMeta(scenario.name, scenario.profile, scenario.seed, opts.planner, args.clock,
+                   list(sys.argv), {}, fleet=args.fleet)
+    if opts.record is not None:
+        from recordings.recorder import Recorder
+        recorder = Recorder(opts.record, fleet=args.fleet, meta=meta, start_ns=getattr(args, "start_time", None))
+        stack.callback(_close_recorder, recorder)
+        recorder.attach(bus)
+    for close in start_live(args.live, bus, meta=meta.to_dict()):
+        stack.callback(close)
+    bus.put(bus.keys.meta, meta.to_json())
+    lag = LagNotice(bus, progress.say) if args.clock == "wall" else None
+    since = bus.clock.now_ns()
+    progress.say(f"run: scenario {scenario.name} ({len(scenario.modules)} modules, profile "
+                 f"{scenario.profile}, seed {scenario.seed}), planner {opts.planner}, clock {args.clock}"
+                 + (f", faults {', '.join(map(str, scenario.faults))}" if scenario.faults else ""))
+    progress.phase("boot")
+    service = PlannerService(bus, scenario, opts.planner, timing=opts.timing, say=phase_sayer(progress))
+    parts = RunParts(bus, service, since, lag)
+    if opts.shards is not None:
+        parts.step, parts.shards = _start_shards(opts.bus_args, bus, scenario, opts.shards, stack, progress)
+    elif opts.with_fleet:  # after the service subscribed: it sees the world's first poses
+        from module_sim.fleet import Fleet
+        hil_port = getattr(args, "hil_port", None)
+        bridges = _bridges(bus, scenario, hil_port)
         for b in bridges:
-            b.close()
-        for fw in firmware:
-            fw.close()
-        if recorder is not None:
-            tally = recorder.close()
-            print(f"recorded {tally.frames} frames, {tally.messages} samples -> "
-                  f"{', '.join(map(str, recorder.paths))}", flush=True)
-        bus.close()
-    if compare:
-        return _compare_model(args, scenario, result.ok)
-    return 0 if result.ok else 1
+            stack.callback(b.close)
+        parts.fleet = Fleet(bus, scenario)
+        parts.checks = _twin_checks(bus, scenario, parts.fleet, bridges, hil_port)
+        parts.fleet.power_up()
+    return parts
 
 
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+def _close_recorder(recorder) -> None:
+    tally = recorder.close()
+    print(f"recorded {tally.frames} frames, {tally.messages} samples -> "
+          f"{', '.join(map(str, recorder.paths))}", flush=True)
 
 
-def _start_shards(args: argparse.Namespace, bus, scenario, n: int, children: list, progress):
+def _end(parts: RunParts, result) -> None:
+    """After the planner's last word: the shards end with it, or the fleet's last samples reach
+    the recorder; then the summary lines. A shard that failed makes the run fail, named."""
+    failed: list[str] = []
+    if parts.step is not None:
+        parts.step.finish()  # every shard stops at this window's end
+        failed = _end_shards(parts.shards)
+    elif parts.fleet is not None:
+        parts.fleet.world.mechanics.publish_run_energy()
+        if not parts.bus.clock.drain(timeout_s=DRAIN_S):
+            print(f"warning: some bus samples had not arrived after {DRAIN_S:g} s; the "
+                  "recording may lack the last of them", flush=True)
+    for check in parts.checks:
+        print(check.summary(), flush=True)
+    lag = "" if result.ok or parts.lag is None else parts.lag.cause()
+    print(result.summary() + lag, flush=True)
+    if failed:
+        raise HexbenchError("; ".join(failed))
+
+
+def _start_shards(args: argparse.Namespace, bus: Bus, scenario, n: int, stack: contextlib.ExitStack,
+                  progress: Progress) -> tuple[Lockstep, list[subprocess.Popen]]:
     """The PC's part of the world here, the fleet in ``n`` shard processes, all on one lockstep
-    clock (docs/bus.md)."""
-    import subprocess
+    clock (docs/bus.md). A run that fails leaves no shard running."""
     import tempfile
 
     from bus.lockstep import Lockstep
     from module_sim.shards import PLANNER, participants, window_ns
     from module_sim.world import World
 
+    children: list[subprocess.Popen] = []
+    stack.callback(_stop_shards, children)
     w = window_ns(scenario.ir_baud)
     World(bus, scenario, own=set(), pc=True, physics=False, slack_ns=2 * w)  # light to the PC
     step = Lockstep(bus, PLANNER, participants(n), w)
+    stack.callback(step.close)
     endpoints = args.connect or [ep.replace("0.0.0.0", "127.0.0.1") for ep in args.listen]
     for k in range(n):
         argv = [sys.executable, "-m", "hexbench", "fleet", args.scenario, "--clock", "virtual",
@@ -314,31 +373,39 @@ def _start_shards(args: argparse.Namespace, bus, scenario, n: int, children: lis
                 argv += [flag, str(value)]
         for f in getattr(args, "fault", []):
             argv += ["--fault", f]
-        log = tempfile.TemporaryFile(mode="w+")
+        log = stack.enter_context(tempfile.TemporaryFile(mode="w+"))
         child = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT)
         child.log = log  # type: ignore[attr-defined]
         children.append(child)
     progress.say(f"shards: {n} processes ({', '.join(str(c.pid) for c in children)}), lockstep "
                  f"window {w / 1e6:g} ms")
-    return step
+    return step, children
 
 
-def _end_shards(children: list, timeout_s: float = 60.0) -> None:
-    """Wait for the shards to end; a shard that failed says why."""
+def _stop_shards(children: list[subprocess.Popen]) -> None:
+    for child in children:  # a failed run: no shard outlives it
+        if child.poll() is None:
+            child.terminate()
+
+
+def _end_shards(children: list, timeout_s: float = 60.0) -> list[str]:
+    """Wait for the shards to end; one line for each that failed, saying why."""
+    failed = []
     for k, child in enumerate(children):
         try:
             child.wait(timeout=timeout_s)
-        except Exception:
+        except subprocess.TimeoutExpired:
             child.kill()
             child.wait()
         if child.returncode != 0:
             child.log.seek(0)
             tail = child.log.read().strip().splitlines()[-3:]
-            print(f"warning: shard {k} ended with exit code {child.returncode}: {' | '.join(tail)}",
-                  flush=True)
+            failed.append(f"shard {k} (pid {child.pid}) ended with exit code {child.returncode}"
+                          + (f": {' | '.join(tail)}" if tail else ""))
+    return failed
 
 
-def _compare_model(args: argparse.Namespace, scenario, ok: bool) -> int:
+def _compare_model(args: argparse.Namespace, record: Path, ok: bool) -> int:
     """The same run with the Python programs; the first frame where the two differ."""
     import subprocess
 
@@ -346,7 +413,7 @@ def _compare_model(args: argparse.Namespace, scenario, ok: bool) -> int:
 
     from .compare import describe_frame, first_divergence
 
-    model_path = args.record.with_name(args.record.stem + "-model.mcap")
+    model_path = record.with_name(record.stem + "-model.mcap")
     argv = [sys.executable, "-m", "hexbench", "run", args.scenario, "--planner", args.planner,
             "--clock", "virtual", "--program", "model", "--record", str(model_path),
             "--timing", args.timing, "--isolated"]
@@ -358,7 +425,7 @@ def _compare_model(args: argparse.Namespace, scenario, ok: bool) -> int:
     model = subprocess.run(argv, capture_output=True, text=True)
     if not model_path.exists():
         raise UsageError(f"the model run failed: {(model.stderr or model.stdout).strip()[-300:]}")
-    total, d = first_divergence(read_frames(model_path), read_frames(args.record))
+    total, d = first_divergence(read_frames(model_path), read_frames(record))
     if d is None:
         print(f"compare: firmware and model agree on all {total} frames (bytes and sim times); "
               f"model run in {model_path}", flush=True)

@@ -1,20 +1,73 @@
 """A fleet: the world, a virtual module for every virtual module of a scenario, and a twin
-(:mod:`module_sim.twin`) for every real one."""
+(:mod:`module_sim.twin`) for every real one. On the wall clock it watches its own lag
+(:class:`LagWatch`)."""
 
 from __future__ import annotations
 
 import gc
 import random
 
+from bus.clock import WallClock
 from bus.keys import module_endpoint
 from bus.scenario import Scenario
-from bus.timing import TICK_NS
+from bus.timing import NS_PER_S, TICK_NS
 from bus.transport import Bus
 
 from .module import VirtualModule
 from .profiles import profile
 from .shards import partition
 from .world import World
+
+
+#: Lateness past which a wall-clock fleet has fallen behind: two ticks (a tick is 9.984 ms).
+LAG_THRESHOLD_NS = 20_000_000
+#: How often the fleet looks at its clock's lateness.
+LAG_CHECK_NS = 100_000_000
+#: At most one ``lag`` event this often; each has the worst lateness since the one before.
+LAG_EVENT_EVERY_NS = NS_PER_S
+#: The participant whose events (``event/fleet``) say the fleet's lag.
+LAG_SRC = "fleet"
+
+
+class LagWatch:
+    """A wall-clock fleet's lag, as Gazebo shows its real-time factor: how late its clock runs
+    timers and deliveries (:meth:`bus.clock.WallClock.take_lateness`). A span in which they ran
+    more than :data:`LAG_THRESHOLD_NS` late becomes a ``lag`` event on ``event/fleet`` once it
+    is over (or every :data:`LAG_EVENT_EVERY_NS` while it lasts, no more often): ``late_ns``
+    (the worst), ``timer_late_ns``, ``delivery_late_ns``, ``threshold_ns``. A virtual clock has
+    no lag: its time waits for the work."""
+
+    def __init__(self, bus: Bus) -> None:
+        self.bus = bus
+        self.clock = bus.clock
+        self._timer_ns = self._delivery_ns = 0  # the worst of the span not yet published
+        self._span_ns: int | None = None  # when the checks first saw it
+        self._last_event_ns: int | None = None
+
+    def start(self) -> "LagWatch":
+        self.clock.take_lateness()  # what came before the fleet ran is not its lag
+        self.clock.call_later(LAG_CHECK_NS, self._check)
+        return self
+
+    def _check(self) -> None:
+        self.clock.call_later(LAG_CHECK_NS, self._check)
+        timer, delivery = self.clock.take_lateness()
+        now = self.clock.now_ns()
+        behind = max(timer, delivery) > LAG_THRESHOLD_NS
+        if behind and self._span_ns is None:
+            self._span_ns = now
+        if self._span_ns is None:
+            return
+        # a span's worst comes after the check that first saw it (timers due later in it run later)
+        self._timer_ns, self._delivery_ns = max(self._timer_ns, timer), max(self._delivery_ns, delivery)
+        over = not behind or now - self._span_ns >= LAG_EVENT_EVERY_NS
+        if over and (self._last_event_ns is None or now - self._last_event_ns >= LAG_EVENT_EVERY_NS):
+            self.bus.event(LAG_SRC, "lag", late_ns=max(self._timer_ns, self._delivery_ns),
+                           timer_late_ns=self._timer_ns, delivery_late_ns=self._delivery_ns,
+                           threshold_ns=LAG_THRESHOLD_NS)
+            self._last_event_ns = now
+            self._timer_ns = self._delivery_ns = 0
+            self._span_ns = None if not behind else now
 
 
 class Fleet:
@@ -45,6 +98,7 @@ class Fleet:
         self.twins = {m.id: VirtualModule(bus, m.id, self.profile, ir_baud=scenario.ir_baud,
                                           mux_cut=mux_cut, origin="twin")
                       for m in scenario.modules if m.kind in ("real", "firmware")}
+        self.lag = LagWatch(bus) if isinstance(bus.clock, WallClock) else None
 
     def power_up(self, stagger: bool = True, *, freeze_gc: bool = False) -> None:
         """Switch the base on: every module boots, each timer at its own (seeded) phase.
@@ -58,6 +112,8 @@ class Fleet:
             gc.collect()
             gc.freeze()
         self.world.start()
+        if self.lag is not None:
+            self.lag.start()
         rng = random.Random(self.scenario.seed)
         now = self.bus.clock.now_ns()
         for ident in self._virtual:

@@ -14,6 +14,7 @@ import time
 import pytest
 
 from hexbench.cli import main
+from hexbench.fleet import SHARD_EXIT_ENV
 from recordings.reader import read_frames
 from tests.support.processes import free_port
 
@@ -102,3 +103,17 @@ def test_a_killed_shard_ends_the_run_at_that_window_and_the_recording_keeps_the_
         time.sleep(0.1)
     else:
         pytest.fail(f"shard 0 (pid {pids[0]}) still runs after the run ended")
+
+
+def test_a_shard_that_fails_at_its_end_fails_the_run_and_is_named(tmp_path):
+    """The planner reached the goal, but shard 1 ended with exit code 3 (a test hook makes it,
+    after its last window): the run exits 1, and one line says which shard and why."""
+    r = subprocess.run([sys.executable, "-m", "hexbench", "run", "pair", "--clock", "virtual",
+                        "--shards", "2", "--fleet", f"shardexit{os.getpid()}"],
+                       capture_output=True, text=True, timeout=300,
+                       env={**os.environ, SHARD_EXIT_ENV: "1=3"})
+    assert "thesis-serial: goal reached" in r.stdout, r.stdout + r.stderr
+    assert r.returncode == 1, r.stdout + r.stderr
+    (line,) = r.stderr.strip().splitlines()
+    assert re.fullmatch(r"hexbench run: error: shard 1 \(pid \d+\) ended with exit code 3: "
+                        r".*shard 1/2: ended at [\d.]+ s sim after \d+ windows.*", line), line
