@@ -70,6 +70,18 @@ TIMER0_PRESCALER = 64
 #: Timer0 in CTC mode counts 0..TIMER0_TOP: 156 counts of 64 us, the 9.984 ms tick.
 TIMER0_TOP = 155
 
+#: The programs' waits and loop counts in bus.timing (in ticks, or rounds): every one goes into
+#: the header, and the C programs use these names where the model uses bus.timing's.
+PROGRAM_TIMING = (
+    "BOOT_SETTLE_TICKS", "ECHO_TIMEOUT_TICKS", "SUBSTRATE_ACK_DELAY_TICKS", "HANDSHAKE_RETRY_TICKS",
+    "LOCALIZE_LISTEN_TICKS", "MAGNET_ON_LIMIT_TICKS", "SOLENOID_ON_LIMIT_TICKS", "SELFTEST_PULSE_TICKS",
+    "BOOT_FLASH_ROUNDS", "BOOT_FLASH_TICKS", "BOOT_CIRCLE_ROUNDS", "BOOT_CIRCLE_TICKS",
+    "BOOT_JTEST_ROUNDS", "BOOT_JTEST_TICKS", "YREF_FLASH_TICKS", "YREF_SHOWS",
+    "THESIS_LOCALIZE_ROUNDS", "THESIS_LOCALIZE_REPEATS", "THESIS_LOCALIZE_SEND_TICKS",
+    "LOCALIZE_FAILED_CIRCLE_ROUNDS", "LOCALIZE_FAILED_CIRCLE_TICKS",
+    "LOCALIZE_MUX_SETTLE_TICKS", "LOCALIZE_BYTE_TICKS",
+)
+
 #: Rotation step opcodes of the generated tables.
 _OPS = {"open": 1, "pos": 2, "neg": 3, "close_all": 4, "off_all": 5, "wait": 6}
 _WAIT_ARG = {"t1": 1, "t2": 2, "t3": 3}
@@ -123,15 +135,11 @@ def header() -> str:
         f"#define TIMER0_PRESCALER {TIMER0_PRESCALER}",
         f"#define TIMER0_TOP {TIMER0_TOP}",
         f"#define TICK_NS {timing.TICK_NS}UL",
-        f"#define BOOT_SETTLE_TICKS {timing.BOOT_SETTLE_TICKS}",
-        f"#define ECHO_TIMEOUT_TICKS {timing.ECHO_TIMEOUT_TICKS}",
-        f"#define SUBSTRATE_ACK_DELAY_TICKS {timing.SUBSTRATE_ACK_DELAY_TICKS}",
-        f"#define HANDSHAKE_RETRY_TICKS {timing.HANDSHAKE_RETRY_TICKS}",
-        f"#define LOCALIZE_LISTEN_TICKS {timing.LOCALIZE_LISTEN_TICKS}",
+        *(f"#define {name} {getattr(timing, name)}" for name in PROGRAM_TIMING),
+        "/* v2 localization at the IR baud rate: a sender slot, a listener window, a step */",
         f"#define LOCALIZE_SLOT_TICKS {timing.localize_slot_ticks(timing.Baud.IR)}",
-        f"#define MAGNET_ON_LIMIT_TICKS {timing.MAGNET_ON_LIMIT_TICKS}",
-        f"#define SOLENOID_ON_LIMIT_TICKS {timing.SOLENOID_ON_LIMIT_TICKS}",
-        f"#define SELFTEST_PULSE_TICKS {timing.SELFTEST_PULSE_TICKS}",
+        f"#define LOCALIZE_WINDOW_TICKS {timing.localize_window_ticks(timing.Baud.IR)}",
+        f"#define LOCALIZE_STEP_TICKS {timing.localize_step_ticks(timing.Baud.IR)}",
         f"#define UART0_UBRR {ubrr(timing.Baud.UART0)}",
         f"#define DEBUG_UBRR {ubrr(timing.Baud.DEBUG)}",
         f"#define IR_UBRR {ubrr(timing.Baud.IR)}",

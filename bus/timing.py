@@ -12,7 +12,7 @@ from enum import Enum
 
 NS_PER_S = 1_000_000_000
 
-#: Timer0 overflow period: prescaler 64, reload 0x64 -> 156 counts of 64 us.
+#: Timer0 tick period: prescaler 64, CTC to 155 -> 156 counts of 64 us.
 TICK_NS = 9_984_000
 
 #: 8N1: start bit, eight data bits, stop bit.
@@ -49,6 +49,47 @@ SOLENOID_ON_LIMIT_TICKS = 6010
 #: SelfTest (ours): each actuator on this long, then off as long, one after another.
 SELFTEST_PULSE_TICKS = 10
 
+# -- the programs' own shows and waits (Appendix A's DelayXts and loop counts) -------------
+# Both programs take these from here: the Python model by name, the C firmware through
+# hexbot_gen.h (bus.cheader). A call with a bare number fails tests/firmware/test_header.py.
+
+#: Comm board boot: LFlash1 (the control board said 'R'), LFlash2 (it listens) and LColor
+#: (before COMM_LST), each this many rounds of this many ticks per phase.
+BOOT_FLASH_ROUNDS = 3
+BOOT_FLASH_TICKS = 10
+#: Comm board boot, after CTR_LST: LCircle, one round of this many ticks per phase.
+BOOT_CIRCLE_ROUNDS = 1
+BOOT_CIRCLE_TICKS = 5
+
+#: Control board boot, after BOOT_SETTLE_TICKS: JTest, the joints click once ("ready").
+BOOT_JTEST_ROUNDS = 1
+BOOT_JTEST_TICKS = 5
+
+#: LYref: the side that faces global +Y shows positive, then negative, this long each.
+YREF_FLASH_TICKS = 10
+#: Ref() and a localization report show the orientation with this many LYref(0).
+YREF_SHOWS = 3
+
+#: Appendix A's Localize, a localized module: this many rounds over its sides 2 and 3,
+#: sending MSG1 on each this many times, each after this many ticks.
+THESIS_LOCALIZE_ROUNDS = 6
+THESIS_LOCALIZE_REPEATS = 2
+THESIS_LOCALIZE_SEND_TICKS = 5
+#: Appendix A's Localize, a listener that heard no MSG1: LCircle, one round of 5 ticks.
+LOCALIZE_FAILED_CIRCLE_ROUNDS = 1
+LOCALIZE_FAILED_CIRCLE_TICKS = 5
+
+#: v2 localization: a sender waits this long after selecting a side, more than the
+#: multiplexer gap (IR_MUX_GAP_NS); the listener is already there.
+LOCALIZE_MUX_SETTLE_TICKS = 2
+#: v2 localization: after the '*' of MSG1 a listener waits this long for each further byte.
+LOCALIZE_BYTE_TICKS = 10
+#: v2 localization: what one sender slot carries (preamble, one role prefix, '*' and
+#: MSG1's seven bytes) and its guard: the settle wait, and a tick for where in its tick a
+#: listener's window starts.
+LOCALIZE_SLOT_BYTES = 15
+LOCALIZE_SLOT_GUARD_TICKS = 3
+
 
 class Baud(int, Enum):
     """Baud rates of the three kinds of link (spec §3, table of links)."""
@@ -74,10 +115,15 @@ def ticks_ns(ticks: int) -> int:
 
 
 def localize_slot_ticks(baud: int) -> int:
-    """v2 localization: one slot carries preamble, role and MSG1 (15 bytes) plus guards."""
-    return math.ceil(15 * byte_time_ns(baud) / TICK_NS) + 3
+    """v2 localization: one sender slot, its line (LOCALIZE_SLOT_BYTES) and its guard."""
+    return math.ceil(LOCALIZE_SLOT_BYTES * byte_time_ns(baud) / TICK_NS) + LOCALIZE_SLOT_GUARD_TICKS
+
+
+def localize_window_ticks(baud: int) -> int:
+    """v2 localization: a listener window is 6 sender slots, one per side."""
+    return 6 * localize_slot_ticks(baud)
 
 
 def localize_step_ticks(baud: int) -> int:
-    """v2 localization: a step is 6 listener windows of 6 sender slots."""
-    return 36 * localize_slot_ticks(baud)
+    """v2 localization: a step is 6 listener windows, one per side."""
+    return 6 * localize_window_ticks(baud)

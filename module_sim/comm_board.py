@@ -16,9 +16,13 @@ from bus.functions import ACK_UNKNOWN, FUNCTIONS, Board, FunctionCode as F
 from bus.lattice import Cell, Direction, Joint, Side, body_to_global, move_rule
 from bus.pins import (COMM_PULLUPS, IR_SEL_A, IR_SEL_MASK, LED_JOINT, LED_NEG, LED_POS, Pin, fold,
                       ir_select_bits, ir_selected, port_masks)
-from bus.timing import (ECHO_TIMEOUT_TICKS, HANDSHAKE_RETRY_TICKS, LOCALIZE_LISTEN_TICKS,
-                        SUBSTRATE_ACK_DELAY_TICKS, Baud,
-                        localize_slot_ticks)
+from bus.timing import (BOOT_CIRCLE_ROUNDS, BOOT_CIRCLE_TICKS, BOOT_FLASH_ROUNDS, BOOT_FLASH_TICKS,
+                        ECHO_TIMEOUT_TICKS, HANDSHAKE_RETRY_TICKS, LOCALIZE_BYTE_TICKS,
+                        LOCALIZE_FAILED_CIRCLE_ROUNDS, LOCALIZE_FAILED_CIRCLE_TICKS,
+                        LOCALIZE_LISTEN_TICKS, LOCALIZE_MUX_SETTLE_TICKS, SUBSTRATE_ACK_DELAY_TICKS,
+                        THESIS_LOCALIZE_REPEATS, THESIS_LOCALIZE_ROUNDS, THESIS_LOCALIZE_SEND_TICKS,
+                        YREF_FLASH_TICKS, YREF_SHOWS, Baud, localize_slot_ticks,
+                        localize_step_ticks, localize_window_ticks)
 
 from .avr import TIMEOUT, Delay, Mcu, Program, Rx, Tx, Uart
 from .profiles import Profile
@@ -189,10 +193,10 @@ class CommBoard(Mcu):
         s = 2 - self.Yref  # the body side that faces global +Y
         self.SideOnP(s)
         self.SideOffN(s)
-        yield Delay(10)
+        yield Delay(YREF_FLASH_TICKS)
         self.SideOnN(s)
         self.SideOffP(s)
-        yield Delay(10)
+        yield Delay(YREF_FLASH_TICKS)
         self.SideOffN(s)
 
     def _mirror(self, name: str, i: int, t1: int, t2: int, t3: int) -> Program:
@@ -231,7 +235,11 @@ class CommBoard(Mcu):
         self.M, self.S, self.L = 0, 1, 1
         self.X = self.Y = 0
         self.Yref = 0
-        for _ in range(3):
+        yield from self._show_yref()
+
+    def _show_yref(self) -> Program:
+        """Show the orientation: LYref(0), YREF_SHOWS times (Ref, a localization report)."""
+        for _ in range(YREF_SHOWS):
             yield from self.LYref(0)
 
     def Localize(self) -> Program:
@@ -243,13 +251,13 @@ class CommBoard(Mcu):
     def _localize_thesis(self) -> Program:
         u1 = self.uart1
         if self.L == 1:
-            for _ in range(6):
+            for _ in range(THESIS_LOCALIZE_ROUNDS):
                 for side, msg in ((2, (0, 0, 0, 0, 0, 1, 5)), (3, (0, 0, 1, 0, 0, 0, 6))):
                     self.SideOnP(side)
                     self.SideOnN(side)
                     self.IrSel(side)
-                    for _ in range(2):
-                        yield Delay(5)
+                    for _ in range(THESIS_LOCALIZE_REPEATS):
+                        yield Delay(THESIS_LOCALIZE_SEND_TICKS)
                         yield from self._pre()
                         yield Tx(u1, codec.START + bytes(msg))
                     self.SideOffP(side)
@@ -280,7 +288,7 @@ class CommBoard(Mcu):
         if self.L == 1:
             yield from self._report_localized(msg1[7])
         else:
-            yield from self.LCircle(1, 5)
+            yield from self.LCircle(LOCALIZE_FAILED_CIRCLE_ROUNDS, LOCALIZE_FAILED_CIRCLE_TICKS)
         self.IrSel(0)
 
     def _report_localized(self, side_heard: int) -> Program:
@@ -289,8 +297,7 @@ class CommBoard(Mcu):
         yield Tx(self.uart1, codec.encode_banner("LOC"))
         yield Tx(self.uart1, codec.encode_side_report(side_heard))
         yield Tx(self.uart1, codec.encode_yref_report(self.Yref))
-        for _ in range(3):
-            yield from self.LYref(0)
+        yield from self._show_yref()
 
     def _localize_v2(self) -> Program:
         """One step of general localization (Table 4-1, all six sides, optical switches).
@@ -300,45 +307,47 @@ class CommBoard(Mcu):
         listens on its body side w; in slot s of every window a localized module sends MSG1
         on its body side s. Only sides with a neighbour are used."""
         u1 = self.uart1
-        slot = localize_slot_ticks(u1.baud)
+        slot, window = localize_slot_ticks(u1.baud), localize_window_ticks(u1.baud)
         here = self.neighbours()
         t0 = self.tick_count()  # slots count timer overflows, as the firmware can
 
-        def tick_at(k: int) -> int:
-            """Ticks from now until slot boundary k (<= 0: it has passed)."""
-            return t0 + k * slot - self.tick_count()
+        def until(ticks: int) -> int:
+            """Ticks from now until t0 + ticks (<= 0: it has passed)."""
+            return t0 + ticks - self.tick_count()
+
+        def left(ticks: int) -> int:
+            """The same, at least one (the C program's ticks_until)."""
+            return max(1, until(ticks))
 
         if self.L == 1:
             for w in range(6):
                 for s in range(1, 7):
-                    k = 6 * w + s - 1
-                    yield Delay(tick_at(k))
+                    yield Delay(until(w * window + (s - 1) * slot))
                     if not here[s - 1]:
                         continue
                     g = body_to_global(s, self.Yref)
                     there = Cell(self.X, self.Y).neighbour(g)
                     self.IrSel(s)
-                    yield Delay(2)  # more than the 0.38 ms multiplexer gap, and the listener is there
+                    yield Delay(LOCALIZE_MUX_SETTLE_TICKS)  # the listener is there
                     yield from self._pre()
                     yield Tx(u1, codec.START + codec.msg1_digits(there.x, there.y, Side(g).facing))
-            yield Delay(tick_at(36))
+            yield Delay(until(localize_step_ticks(u1.baud)))
             self.IrSel(0)
             return
         heard = 0
         for w in range(1, 7):
             if not here[w - 1]:
                 continue
-            yield Delay(tick_at(6 * (w - 1)))
+            yield Delay(until((w - 1) * window))
             self.IrSel(w)
-            end = 6 * w
-            b = yield Rx(u1, max(1, tick_at(end)))
+            b = yield Rx(u1, left(w * window))
             while b not in (_STAR, TIMEOUT):
-                b = yield Rx(u1, max(1, tick_at(end)))
+                b = yield Rx(u1, left(w * window))
             if b != _STAR:
                 continue
             body = []
             for _ in range(7):
-                body.append((yield Rx(u1, HANDSHAKE_RETRY_TICKS)))
+                body.append((yield Rx(u1, LOCALIZE_BYTE_TICKS)))
             v = codec.msg1_view(codec.START + bytes(body))
             if not v["valid"]:
                 continue
@@ -360,7 +369,7 @@ class CommBoard(Mcu):
         yield Tx(u1, codec.encode_banner("COMM_Ready"))
         while (yield Rx(u0)) != _R:
             pass
-        yield from self.LFlash1(3, 10)
+        yield from self.LFlash1(BOOT_FLASH_ROUNDS, BOOT_FLASH_TICKS)
         yield Tx(u1, codec.encode_banner("CTR_Ready"))
         yield Tx(u0, b"R")
         while (yield Rx(u0, HANDSHAKE_RETRY_TICKS)) != _L:
@@ -369,16 +378,16 @@ class CommBoard(Mcu):
             # any byte is an id, '~' (126) too: only silence means none
             ident = yield Rx(u0, HANDSHAKE_RETRY_TICKS, tell_timeout=True)
             self.id = 0 if ident is None else ident
-        yield from self.LFlash2(3, 10)
+        yield from self.LFlash2(BOOT_FLASH_ROUNDS, BOOT_FLASH_TICKS)
         yield Tx(u1, codec.encode_banner("CTR_LST"))
-        yield from self.LCircle(1, 5)
+        yield from self.LCircle(BOOT_CIRCLE_ROUNDS, BOOT_CIRCLE_TICKS)
         if self.profile.boot_assumes_yref:
             self.Yref = 1  # the thesis assumed its test orientation instead of localizing
         self.IrSel(0)
         # v2 keeps the banner so a v1 PC sees the same boot; it no longer claims L=1.
         yield Tx(u1, codec.encode_banner("LOC"))
         self.IrSel(0)
-        yield from self.LColor(3, 10)
+        yield from self.LColor(BOOT_FLASH_ROUNDS, BOOT_FLASH_TICKS)
         yield Tx(u1, codec.encode_banner("COMM_LST"))
         while True:
             yield from self.listen()

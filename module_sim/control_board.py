@@ -13,8 +13,9 @@ from bus.clock import Clock
 from bus.functions import FUNCTIONS, Board
 from bus.pins import (CONTROL_PULLUPS, CONTROL_UART_PINS, DIP_PORT, JOINT, MAGNET_NEG, MAGNET_POS, Pin,
                       dip_id, dip_levels, fold, port_masks)
-from bus.timing import (BOOT_SETTLE_TICKS, HANDSHAKE_RETRY_TICKS, MAGNET_ON_LIMIT_TICKS,
-                        SELFTEST_PULSE_TICKS, SOLENOID_ON_LIMIT_TICKS, TICK_NS, Baud)
+from bus.timing import (BOOT_JTEST_ROUNDS, BOOT_JTEST_TICKS, BOOT_SETTLE_TICKS, HANDSHAKE_RETRY_TICKS,
+                        MAGNET_ON_LIMIT_TICKS, SELFTEST_PULSE_TICKS, SOLENOID_ON_LIMIT_TICKS, TICK_NS,
+                        Baud)
 
 from .avr import Delay, Mcu, Program, Rx, Tx, Uart
 from .profiles import Profile
@@ -229,7 +230,7 @@ class ControlBoard(Mcu):
         u0, u1 = self.uart0, self.uart1
         yield Delay(BOOT_SETTLE_TICKS)  # let the supplies settle
         self.TurnOffAll()
-        yield from self.JTest(1, 5)  # the joints click once: "ready"
+        yield from self.JTest(BOOT_JTEST_ROUNDS, BOOT_JTEST_TICKS)  # the joints click once: "ready"
         yield Tx(u1, codec.PREAMBLE)
         yield Tx(u1, codec.BANNERS["CTR_Ready"] + codec.EOL)
         yield Tx(u0, b"R")

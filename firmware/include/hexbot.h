@@ -7,7 +7,8 @@
  * line number, as in protothreads), so the program reads like the thesis's sequential
  * code while never blocking the caller.
  *
- * Rules for a coroutine body: all state that lives across a wait is static; at most one
+ * Rules for a coroutine body: all state that lives across a wait is static (comm.c keeps
+ * it in one struct per coroutine: its pt_t and those locals, named after it); at most one
  * PT_ macro per source line; no `switch` in a coroutine body (put it in a helper). */
 #ifndef HEXBOT_H
 #define HEXBOT_H
@@ -118,11 +119,16 @@ void pin_change(const uint8_t *ports, const uint8_t *masks, int16_t i, uint8_t s
 /* All six pins of a table: one write per port, in port order (as the model does). */
 void pins_change(const uint8_t *ports, const uint8_t *masks, uint8_t set);
 
-/* One rotation (bus/rotations.py) through a board's own actions. */
+/* One rotation (bus/rotations.py) through a board's own actions. Its state is the
+ * caller's: a rotation_t for each place that runs one. */
 enum { ROT_OPEN = 1, ROT_POS, ROT_NEG, ROT_CLOSE_ALL, ROT_OFF_ALL, ROT_WAIT };
 typedef void (*rotation_action)(uint8_t op, int16_t index);
+typedef struct {
+    pt_t pt;
+    uint8_t step; /* the (op, arg) pair being walked */
+} rotation_t;
 const int8_t *rotation_steps(uint8_t code); /* code 21..24 or 56..59 */
-uint8_t co_rotation(pt_t *pt, const int8_t *steps, uint8_t i, const uint8_t t[3],
+uint8_t co_rotation(rotation_t *r, const int8_t *steps, uint8_t i, const uint8_t t[3],
                     rotation_action act);
 
 #endif

@@ -2,7 +2,19 @@
  * the control board on UART0, LEDs active low (Tables 3-4, 3-5). Behaviour: spec sections
  * 5, 6, 9 and 13; module_sim/comm_board.py is the reference model. HEXBOT_V2 selects
  * protocol v2 (addressing, location report, general localization) or the thesis-2009
- * firmware's observable behaviour. */
+ * firmware's observable behaviour.
+ *
+ * How it runs: program_step() (at the end) runs co_program: the boot (banners, the
+ * handshake with the control board, LED shows), then co_listen forever: one frame from the
+ * PC, co_dispatch, the ACK. co_dispatch relays a control-board code (co_relay) and runs its
+ * LED mirror, or runs a comm-board code (run_comm): an LED show, co_localize, co_turn
+ * (co_rotate), and in v2 Select, co_move and the Report and Version lines.
+ *
+ * Each coroutine keeps its state in one struct named after it, declared just above it: its
+ * pt_t (where it waits) and the locals that live across a wait. What it leaves for its
+ * caller (relay.result, rotate.ack, dispatch.ack, ...) is read there after its PT_CALL.
+ * Every line to the PC is built and sent by LINE_SEND, one burst at a time. Waits and
+ * show lengths are bus/timing.py's, through hexbot_gen.h. */
 #include "hexbot.h"
 
 const uint8_t program_outputs[5] = {COMM_OUTPUTS_A, COMM_OUTPUTS_B, COMM_OUTPUTS_C,
@@ -34,16 +46,17 @@ static const char S_CTR_READY[] FW_CONST = TXT_CTR_READY;
 static const char S_CTR_LST[] FW_CONST = TXT_CTR_LST;
 static const char S_COMM_LST[] FW_CONST = TXT_COMM_LST;
 static const char S_LOC[] FW_CONST = TXT_LOC;
+static const char S_SIDE[] FW_CONST = TXT_SIDE;
+static const char S_YREF[] FW_CONST = TXT_YREF;
 
-/* the thesis firmware's globals */
-static uint8_t M = 1, S, L, Yref;
-static int16_t X, Y;
+/* --- the module: the thesis firmware's globals, v2's addressing, the frame being run ----- */
+static uint8_t M = 1, S, L, Yref; /* mobile, substrate, localized; orientation 0..5 */
+static int16_t X, Y;              /* the module's cell once localized */
 #if HEXBOT_V2
-static uint8_t id, selected = 1, addressed, v2_active;
+static uint8_t id, selected = 1, addressed, v2_active; /* DIP id; what Select decided */
 #endif
-static uint8_t substrate_turn;
-static uint8_t frame[10]; /* code and 8 arguments (and room to resynchronise) */
-static uint8_t out[24];   /* a line being built for UART1: the longest, POS, is 17 bytes */
+static uint8_t frame[10];      /* from the PC: code and 8 arguments (and room to resynchronise) */
+static uint8_t substrate_turn; /* this frame's Move made us its substrate: ACK after the mobile */
 
 /* --- IR multiplexer and LEDs ------------------------------------------------------ */
 static void IrSel(uint8_t i)
@@ -97,36 +110,98 @@ static uint8_t switch_bits(void)
 }
 #endif
 
-/* --- UART1 lines ------------------------------------------------------------------ */
-/* The preamble and role prefix every module -> PC line starts with: "S: " if S, "M: " if M. */
-static uint8_t pre(uint8_t *p)
+/* --- lines to the PC (UART1), one burst at a time ----------------------------------- */
+/* A burst (one transmission, as one Tx of the model) is built into `line` by a line_*
+ * builder and handed to UART1 in the same statement: LINE_SEND(pt, line_ack(ack)). A
+ * coroutine waits only inside LINE_SEND, so no burst can be built while another is still
+ * going into UDR: two lines cannot share the buffer. The builders are called only inside
+ * LINE_SEND (tests/firmware/test_header.py holds this). */
+#define PRE_MAX (sizeof(S_PREAMBLE) - 1 + sizeof(TXT_ROLE_S) - 1 + sizeof(TXT_ROLE_M) - 1)
+
+static struct {
+    uint8_t buf[PRE_MAX + 10]; /* the longest line, POS: pre, "POS", 5 bytes, EOL */
+    uint8_t len;
+} line;
+
+#define LINE_SEND(pt, build) \
+    do { line.len = 0; build; TX(pt, UART1, line.buf, line.len); } while (0)
+
+/* Builders append with these, kept quick: a burst's first byte waits for all of it. */
+#define LINE_INLINE static inline __attribute__((always_inline))
+
+LINE_INLINE void line_add(uint8_t b)
 {
-    uint8_t n = 0;
-    for (uint8_t k = 0; k < sizeof(S_PREAMBLE) - 1; k++)
-        p[n++] = fw_byte(&S_PREAMBLE[k]);
-    if (S)
-        p[n++] = TXT_ROLE_S[0], p[n++] = TXT_ROLE_S[1], p[n++] = TXT_ROLE_S[2];
-    if (M)
-        p[n++] = TXT_ROLE_M[0], p[n++] = TXT_ROLE_M[1], p[n++] = TXT_ROLE_M[2];
-    return n;
+    line.buf[line.len++] = b;
 }
 
-static uint8_t out_len, pre_len;
+/* a three-letter text of hexbot_gen.h ("ACK", "M: "): three constant bytes */
+LINE_INLINE void line_add3(const char *t)
+{
+    line_add((uint8_t)t[0]), line_add((uint8_t)t[1]), line_add((uint8_t)t[2]);
+}
 
-/* --- LED animations --------------------------------------------------------------- */
-static pt_t pt_anim;
-static uint8_t an_round, an_k;
+LINE_INLINE void line_eol(void)
+{
+    line_add(TXT_EOL[0]), line_add(TXT_EOL[1]);
+}
 
+/* n bytes of a FW_CONST table or string */
+static void line_add_P(const void *flash, uint8_t n)
+{
+    const uint8_t *from = (const uint8_t *)flash;
+    uint8_t *to = line.buf + line.len;
+    line.len = (uint8_t)(line.len + n);
+    while (n--) {
+        *to++ = fw_byte(from);
+        from++;
+    }
+}
+
+/* a FW_CONST string without its NUL */
+#define line_text(s) line_add_P(s, sizeof(s) - 1)
+
+/* The preamble and role prefix every module -> PC line starts with: "S: " if S, "M: " if M. */
+static void line_pre(void)
+{
+    line_text(S_PREAMBLE);
+    if (S)
+        line_add3(TXT_ROLE_S);
+    if (M)
+        line_add3(TXT_ROLE_M);
+}
+
+/* pre, "ACK", the code, EOL */
+static void line_ack(uint8_t ack)
+{
+    line_pre();
+    line_add3(TXT_ACK);
+    line_add(ack);
+    line_eol();
+}
+
+/* "Side: s" or "Yref: y", EOL: a localization report (flash label, one digit). */
+_Static_assert(sizeof(S_SIDE) == sizeof(S_YREF), "the two report labels are one length");
+
+static void line_report(const char *label, uint8_t digit)
+{
+    line_add_P(label, sizeof(S_SIDE) - 1);
+    line_add((uint8_t)(digit + '0'));
+    line_eol();
+}
+
+/* --- LED shows --------------------------------------------------------------------- */
 /* SidePTest, SideNTest, JointTest: each LED of a kind on t ticks, off t ticks, n rounds. */
+static struct { pt_t pt; uint8_t round, k; } blink;
+
 static uint8_t co_blink(const uint8_t *ports, const uint8_t *masks, uint8_t n, uint8_t t)
 {
-    pt_t *pt = &pt_anim;
+    pt_t *pt = &blink.pt;
     PT_BEGIN(pt);
-    for (an_round = 0; an_round < n; an_round++) {
-        for (an_k = 1; an_k <= 6; an_k++) {
-            led(ports, masks, an_k, 1);
+    for (blink.round = 0; blink.round < n; blink.round++) {
+        for (blink.k = 1; blink.k <= 6; blink.k++) {
+            led(ports, masks, blink.k, 1);
             DELAY(pt, t);
-            led(ports, masks, an_k, 0);
+            led(ports, masks, blink.k, 0);
             DELAY(pt, t);
         }
     }
@@ -134,32 +209,31 @@ static uint8_t co_blink(const uint8_t *ports, const uint8_t *masks, uint8_t n, u
 }
 
 /* LCircle: joint LED, a probe (0xFF, 0x00) on every side, magnet LEDs. */
-static pt_t pt_circle;
-static uint8_t ci_round, ci_k;
 static const uint8_t PROBE[2] = PROBE_BYTES;
+static struct { pt_t pt; uint8_t round, k; } circle;
 
 static uint8_t co_circle(uint8_t n, uint8_t t)
 {
-    pt_t *pt = &pt_circle;
+    pt_t *pt = &circle.pt;
     PT_BEGIN(pt);
-    for (ci_round = 0; ci_round < n; ci_round++) {
-        for (ci_k = 1; ci_k <= 6; ci_k++) {
-            led(JNT_PORT, JNT_MASK, ci_k, 1);
+    for (circle.round = 0; circle.round < n; circle.round++) {
+        for (circle.k = 1; circle.k <= 6; circle.k++) {
+            led(JNT_PORT, JNT_MASK, circle.k, 1);
             DELAY(pt, t);
-            led(JNT_PORT, JNT_MASK, ci_k, 0);
+            led(JNT_PORT, JNT_MASK, circle.k, 0);
             DELAY(pt, t);
-            IrSel(ci_k);
+            IrSel(circle.k);
             TX(pt, UART1, &PROBE[0], 1);
             DELAY(pt, t);
             TX(pt, UART1, &PROBE[1], 1);
             DELAY(pt, t);
-            led(NEG_PORT, NEG_MASK, ci_k, 1);
+            led(NEG_PORT, NEG_MASK, circle.k, 1);
             DELAY(pt, t);
-            led(NEG_PORT, NEG_MASK, ci_k, 0);
+            led(NEG_PORT, NEG_MASK, circle.k, 0);
             DELAY(pt, t);
-            led(POS_PORT, POS_MASK, ci_k, 1);
+            led(POS_PORT, POS_MASK, circle.k, 1);
             DELAY(pt, t);
-            led(POS_PORT, POS_MASK, ci_k, 0);
+            led(POS_PORT, POS_MASK, circle.k, 0);
             DELAY(pt, t);
         }
     }
@@ -178,17 +252,19 @@ static void color_leds(uint8_t kind, uint8_t on)
         leds(POS_PORT, POS_MASK, on);
 }
 
-/* LColor, LFlash1, LFlash2 */
+/* LColor, LFlash1, LFlash2: n rounds, t ticks a phase. */
+static struct { pt_t pt; uint8_t round, kind; } flash;
+
 static uint8_t co_flash(uint8_t code, uint8_t n, uint8_t t)
 {
-    pt_t *pt = &pt_anim;
+    pt_t *pt = &flash.pt;
     PT_BEGIN(pt);
-    for (an_round = 0; an_round < n; an_round++) {
+    for (flash.round = 0; flash.round < n; flash.round++) {
         if (code == FC_LColor) {
-            for (an_k = 0; an_k < 3; an_k++) {
-                color_leds(an_k, 1);
+            for (flash.kind = 0; flash.kind < 3; flash.kind++) {
+                color_leds(flash.kind, 1);
                 DELAY(pt, t);
-                color_leds(an_k, 0);
+                color_leds(flash.kind, 0);
                 DELAY(pt, t);
             }
         } else if (code == FC_LFlash1) {
@@ -210,39 +286,39 @@ static uint8_t co_flash(uint8_t code, uint8_t n, uint8_t t)
     PT_END(pt);
 }
 
-/* LYref(i): i = 1 turns Yref by +1, 2 by -1; then flash the side that faces global +Y. */
-static pt_t pt_yref;
-static uint8_t yref_side;
+/* LYref(i): turn Yref by +1 (YREF_PLUS), -1 (YREF_MINUS) or not at all (YREF_KEEP), then
+ * flash the side that faces global +Y. */
+enum { YREF_KEEP = 0, YREF_PLUS = 1, YREF_MINUS = 2 };
+static struct { pt_t pt; uint8_t side; } lyref;
 
-static uint8_t co_yref(uint8_t i)
+static uint8_t co_lyref(uint8_t i)
 {
-    pt_t *pt = &pt_yref;
+    pt_t *pt = &lyref.pt;
     PT_BEGIN(pt);
-    if (i == 1)
+    if (i == YREF_PLUS)
         Yref = (uint8_t)((Yref + 1) % 6);
-    else if (i == 2)
+    else if (i == YREF_MINUS)
         Yref = (uint8_t)((Yref + 5) % 6);
-    yref_side = fold(2 - (int16_t)Yref);
-    led(POS_PORT, POS_MASK, yref_side, 1);
-    led(NEG_PORT, NEG_MASK, yref_side, 0);
-    DELAY(pt, 10);
-    led(NEG_PORT, NEG_MASK, yref_side, 1);
-    led(POS_PORT, POS_MASK, yref_side, 0);
-    DELAY(pt, 10);
-    led(NEG_PORT, NEG_MASK, yref_side, 0);
+    lyref.side = fold(2 - (int16_t)Yref);
+    led(POS_PORT, POS_MASK, lyref.side, 1);
+    led(NEG_PORT, NEG_MASK, lyref.side, 0);
+    DELAY(pt, YREF_FLASH_TICKS);
+    led(NEG_PORT, NEG_MASK, lyref.side, 1);
+    led(POS_PORT, POS_MASK, lyref.side, 0);
+    DELAY(pt, YREF_FLASH_TICKS);
+    led(NEG_PORT, NEG_MASK, lyref.side, 0);
     PT_END(pt);
 }
 
-/* Three LYref(0): show the orientation. */
-static pt_t pt_show;
-static uint8_t show_k;
+/* Show the orientation: LYref(0), YREF_SHOWS times (Ref, a localization report). */
+static struct { pt_t pt; uint8_t k; } show;
 
 static uint8_t co_show_yref(void)
 {
-    pt_t *pt = &pt_show;
+    pt_t *pt = &show.pt;
     PT_BEGIN(pt);
-    for (show_k = 0; show_k < 3; show_k++) {
-        PT_CALL(pt, co_yref(0));
+    for (show.k = 0; show.k < YREF_SHOWS; show.k++) {
+        PT_CALL(pt, co_lyref(YREF_KEEP));
     }
     PT_END(pt);
 }
@@ -259,163 +335,160 @@ static void mirror_act(uint8_t op, int16_t i)
     }
 }
 
-static pt_t pt_mirror;
+static rotation_t led_rotation; /* LMCW..LSCCW sent by the PC */
 
 /* --- relay to the control board ----------------------------------------------------- */
-static pt_t pt_relay;
-static uint8_t relay_frame[RELAY_FRAME_LEN], relay_result;
-
 /* MSG(): '*' code a b c d '#' on UART0 (unused arguments 'N'), then wait for the echo. */
+static struct { pt_t pt; uint8_t frame[RELAY_FRAME_LEN], result; } relay;
+
 static uint8_t co_relay(uint8_t code, const uint8_t *a)
 {
-    pt_t *pt = &pt_relay;
+    pt_t *pt = &relay.pt;
     PT_BEGIN(pt);
-    relay_frame[0] = BYTE_START;
-    relay_frame[1] = code;
+    relay.frame[0] = BYTE_START;
+    relay.frame[1] = code;
     for (uint8_t k = 0; k < 4; k++)
-        relay_frame[2 + k] = k < fn_nargs(code) ? a[k] : ARG_UNUSED;
+        relay.frame[2 + k] = k < fn_nargs(code) ? a[k] : ARG_UNUSED;
     if (code == FC_JxOpenAll || code == FC_JxCloseAll)
-        relay_frame[2] = 0; /* these two send 0, not 'N', first (Appendix A) */
+        relay.frame[2] = 0; /* these two send 0, not 'N', first (Appendix A) */
 #if HEXBOT_V2
     if (code == FC_SelfTest)
-        relay_frame[2] = switch_bits(); /* the control board reports them with the DIP id */
+        relay.frame[2] = switch_bits(); /* the control board reports them with the DIP id */
 #endif
-    relay_frame[6] = BYTE_END;
-    TX(pt, UART0, relay_frame, RELAY_FRAME_LEN);
-    RX_TL(pt, UART0, ECHO_TIMEOUT_TICKS, relay_result);
+    relay.frame[6] = BYTE_END;
+    TX(pt, UART0, relay.frame, RELAY_FRAME_LEN);
+    RX_TL(pt, UART0, ECHO_TIMEOUT_TICKS, relay.result);
     PT_END(pt);
 }
 
 /* A rotation on this module: relay `code` with (i, t1, t2, t3), then its LED mirror. */
-static pt_t pt_rotate;
-static uint8_t rot_args[4], rot_code, rot_ack;
+static struct { pt_t pt; uint8_t code, args[4], ack; rotation_t mirror; } rotate;
+
+static uint8_t co_rotate_mirror(void)
+{
+    return co_rotation(&rotate.mirror, rotation_steps(rotate.code), rotate.args[0], &rotate.args[1],
+                       mirror_act);
+}
 
 static uint8_t co_rotate(uint8_t code, uint8_t i, uint8_t t1, uint8_t t2, uint8_t t3)
 {
-    pt_t *pt = &pt_rotate;
+    pt_t *pt = &rotate.pt;
     PT_BEGIN(pt);
-    rot_code = code;
-    rot_args[0] = i, rot_args[1] = t1, rot_args[2] = t2, rot_args[3] = t3;
-    PT_CALL(pt, co_relay(rot_code, rot_args));
-    rot_ack = relay_result;
-    PT_CALL(pt, co_rotation(&pt_mirror, rotation_steps(rot_code), rot_args[0], &rot_args[1], mirror_act));
+    rotate.code = code;
+    rotate.args[0] = i, rotate.args[1] = t1, rotate.args[2] = t2, rotate.args[3] = t3;
+    PT_CALL(pt, co_relay(rotate.code, rotate.args));
+    rotate.ack = relay.result;
+    PT_CALL(pt, co_rotate_mirror());
     PT_END(pt);
 }
 
 /* CW (67) / CCW (68): a mobile runs MCW/MCCW(mi..), a substrate SCW/SCCW(si..). */
-static pt_t pt_turn;
-static uint8_t turn_ack;
+static struct { pt_t pt; uint8_t ack; } turn;
 
 static uint8_t co_turn(uint8_t code, const uint8_t *a)
 {
-    pt_t *pt = &pt_turn;
+    pt_t *pt = &turn.pt;
     PT_BEGIN(pt);
-    turn_ack = ACK_UNKNOWN; /* C leaves it uninitialised when M = S = 0; we say 'N' */
+    turn.ack = ACK_UNKNOWN; /* C leaves it uninitialised when M = S = 0; we say 'N' */
     if (M == 1) {
         PT_CALL(pt, co_rotate(code == FC_CW ? FC_MCW : FC_MCCW, a[4], a[5], a[6], a[7]));
-        turn_ack = rot_ack;
+        turn.ack = rotate.ack;
     }
     if (S == 1) {
         PT_CALL(pt, co_rotate(code == FC_CW ? FC_SCW : FC_SCCW, a[0], a[1], a[2], a[3]));
-        turn_ack = rot_ack;
+        turn.ack = rotate.ack;
     }
     PT_END(pt);
 }
 
 /* --- localization ---------------------------------------------------------------- */
-static pt_t pt_loc, pt_report;
-static uint8_t loc_side, loc_w, loc_byte, loc_heard, loc_body[MSG1_LEN];
-#if HEXBOT_V2
-static uint16_t loc_t0;
-#endif
-
 /* After a successful localization: "LOCALIZED", "Side: s", "Yref: y", show Yref. */
+static struct { pt_t pt; } report;
+
 static uint8_t co_report_localized(uint8_t side)
 {
-    pt_t *pt = &pt_report;
+    pt_t *pt = &report.pt;
     PT_BEGIN(pt);
     IrSel(0);
-    out_len = pre(out);
-    TX(pt, UART1, out, out_len);
+    LINE_SEND(pt, line_pre());
     TX_P(pt, UART1, S_LOC);
-    for (out_len = 0; out_len < 6; out_len++)
-        out[out_len] = (uint8_t)TXT_SIDE[out_len];
-    out[6] = (uint8_t)(side + '0'), out[7] = TXT_EOL[0], out[8] = TXT_EOL[1];
-    TX(pt, UART1, out, 9);
-    for (out_len = 0; out_len < 6; out_len++)
-        out[out_len] = (uint8_t)TXT_YREF[out_len];
-    out[6] = (uint8_t)(Yref + '0');
-    TX(pt, UART1, out, 9);
+    LINE_SEND(pt, line_report(S_SIDE, side));
+    LINE_SEND(pt, line_report(S_YREF, Yref));
     PT_CALL(pt, co_show_yref());
     PT_END(pt);
 }
 
+static struct {
+    pt_t pt;
+    uint8_t w;               /* a sender's round or window, a listener's side */
+    uint8_t side, k;         /* the side a sender is on; a count */
+    uint8_t byte, heard;     /* the byte read; the side a MSG1 named (v2) */
+    uint8_t body[MSG1_LEN];  /* the MSG1 read: '*', then body[1..7] */
 #if HEXBOT_V2
-static void msg1_digits(uint8_t *p, int16_t x, int16_t y, uint8_t side)
-{
-    int16_t ax = x < 0 ? -x : x, ay = y < 0 ? -y : y;
-    p[0] = x < 0, p[1] = (uint8_t)(ax / 10 % 10), p[2] = (uint8_t)(ax % 10);
-    p[3] = y < 0, p[4] = (uint8_t)(ay / 10 % 10), p[5] = (uint8_t)(ay % 10);
-    p[6] = side;
-}
+    uint16_t t0;             /* the tick the step began on */
 #endif
+} localize;
 
 #if !HEXBOT_V2
 /* Appendix A's Localize(): a localized module sends fixed MSG1s on sides 2 and 3; a
  * listener takes X from the tens digit and Y from the units digit (spec section 12). */
 static const uint8_t THESIS_MSG1[2][7] FW_CONST = {{0, 0, 0, 0, 0, 1, 5}, {0, 0, 1, 0, 0, 0, 6}};
 
+/* '*' and the fixed MSG1 the thesis sends on side 2 or 3 */
+static void line_thesis_msg1(uint8_t side)
+{
+    line_add(BYTE_START);
+    line_add_P(THESIS_MSG1[side - 2], MSG1_LEN - 1);
+}
+
 static uint8_t co_localize(void)
 {
-    pt_t *pt = &pt_loc;
+    pt_t *pt = &localize.pt;
     PT_BEGIN(pt);
     if (L == 1) {
-        for (loc_w = 0; loc_w < 6; loc_w++) {
-            for (loc_side = 2; loc_side <= 3; loc_side++) {
-                led(POS_PORT, POS_MASK, loc_side, 1);
-                led(NEG_PORT, NEG_MASK, loc_side, 1);
-                IrSel(loc_side);
-                for (loc_heard = 0; loc_heard < 2; loc_heard++) {
-                    DELAY(pt, 5);
-                    pre_len = out_len = pre(out);
-                    out[out_len++] = BYTE_START;
-                    for (uint8_t k = 0; k < 7; k++)
-                        out[out_len++] = fw_byte(&THESIS_MSG1[loc_side - 2][k]);
-                    TX(pt, UART1, out, pre_len); /* two transmissions, as the thesis's two */
-                    TX(pt, UART1, out + pre_len, MSG1_LEN);
+        for (localize.w = 0; localize.w < THESIS_LOCALIZE_ROUNDS; localize.w++) {
+            for (localize.side = 2; localize.side <= 3; localize.side++) {
+                led(POS_PORT, POS_MASK, localize.side, 1);
+                led(NEG_PORT, NEG_MASK, localize.side, 1);
+                IrSel(localize.side);
+                for (localize.k = 0; localize.k < THESIS_LOCALIZE_REPEATS; localize.k++) {
+                    DELAY(pt, THESIS_LOCALIZE_SEND_TICKS);
+                    LINE_SEND(pt, line_pre()); /* two transmissions, as the thesis's two */
+                    LINE_SEND(pt, line_thesis_msg1(localize.side));
                 }
-                led(POS_PORT, POS_MASK, loc_side, 0);
-                led(NEG_PORT, NEG_MASK, loc_side, 0);
+                led(POS_PORT, POS_MASK, localize.side, 0);
+                led(NEG_PORT, NEG_MASK, localize.side, 0);
             }
         }
         IrSel(0);
         PT_EXIT(pt);
     }
-    for (loc_w = 1; loc_w < 7; loc_w++) {
-        IrSel(loc_w);
-        led(POS_PORT, POS_MASK, loc_w, 1);
-        led(NEG_PORT, NEG_MASK, loc_w, 1);
+    for (localize.w = 1; localize.w < 7; localize.w++) {
+        IrSel(localize.w);
+        led(POS_PORT, POS_MASK, localize.w, 1);
+        led(NEG_PORT, NEG_MASK, localize.w, 1);
         do {
-            RX_TL(pt, UART1, LOCALIZE_LISTEN_TICKS, loc_byte);
-        } while (loc_byte != BYTE_START && loc_byte != ACK_TIMEOUT);
-        if (loc_byte == BYTE_START) {
-            for (loc_side = 1; loc_side < MSG1_LEN; loc_side++) {
-                RX(pt, UART1, loc_body[loc_side]);
+            RX_TL(pt, UART1, LOCALIZE_LISTEN_TICKS, localize.byte);
+        } while (localize.byte != BYTE_START && localize.byte != ACK_TIMEOUT);
+        if (localize.byte == BYTE_START) {
+            for (localize.k = 1; localize.k < MSG1_LEN; localize.k++) {
+                RX(pt, UART1, localize.body[localize.k]);
             }
-            X = loc_body[2], Y = loc_body[6]; /* the firmware's digits (a defect) */
-            Yref = (uint8_t)((((int16_t)loc_body[7] - loc_w) % 6 + 6) % 6);
+            X = localize.body[2], Y = localize.body[6]; /* the firmware's digits (a defect) */
+            Yref = (uint8_t)((((int16_t)localize.body[7] - localize.w) % 6 + 6) % 6);
             L = 1;
-            loc_w = 7;
+            localize.w = 7;
             IrSel(0);
             LOff();
         }
-        led(POS_PORT, POS_MASK, loc_w, 0); /* after success loc_w is 7: side 1, as in C */
-        led(NEG_PORT, NEG_MASK, loc_w, 0);
+        /* after success localize.w is 7: side 1, as in C */
+        led(POS_PORT, POS_MASK, localize.w, 0);
+        led(NEG_PORT, NEG_MASK, localize.w, 0);
     }
     if (L == 1) {
-        PT_CALL(pt, co_report_localized(loc_body[7]));
+        PT_CALL(pt, co_report_localized(localize.body[7]));
     } else {
-        PT_CALL(pt, co_circle(1, 5));
+        PT_CALL(pt, co_circle(LOCALIZE_FAILED_CIRCLE_ROUNDS, LOCALIZE_FAILED_CIRCLE_TICKS));
     }
     IrSel(0);
     PT_END(pt);
@@ -426,7 +499,18 @@ static uint8_t co_localize(void)
  * of 6 sender slots. In window w a module that is not localized listens on body side w;
  * in slot s of each window a localized one sends MSG1 on body side s. Sides without a
  * neighbour stay dark. */
-#define SLOT LOCALIZE_SLOT_TICKS
+
+/* The tick window w (0..5) of this step begins on. */
+static uint16_t window_start(uint8_t w)
+{
+    return (uint16_t)(localize.t0 + w * LOCALIZE_WINDOW_TICKS);
+}
+
+/* The tick the sender slot of body side 1..6 in window w begins on. */
+static uint16_t slot_start(uint8_t w, uint8_t side)
+{
+    return (uint16_t)(window_start(w) + (side - 1) * LOCALIZE_SLOT_TICKS);
+}
 
 /* Ticks until the overflow that makes board_ticks() == target, at least 1. */
 static uint16_t ticks_until(uint16_t target)
@@ -447,106 +531,122 @@ static int16_t msg1_coord(const uint8_t *p)
     int16_t v = (int16_t)(10 * p[1] + p[2]);
     return p[0] ? (int16_t)-v : v;
 }
+
+/* sign, tens, units: a coordinate in MSG1 */
+static void line_coord(int16_t v)
+{
+    int16_t a = v < 0 ? -v : v;
+    line_add(v < 0), line_add((uint8_t)(a / 10 % 10)), line_add((uint8_t)(a % 10));
+}
+
+/* '*' MSG1 across body side `side`: the neighbour's cell there, and the side it faces us by */
+static void line_msg1(uint8_t side)
+{
+    uint8_t g = fold(side + Yref);
+    line_add(BYTE_START);
+    line_coord(X + fw_sbyte(&NB_DX[g]));
+    line_coord(Y + fw_sbyte(&NB_DY[g]));
+    line_add(fold(g + 3));
+}
+
 static uint8_t co_localize(void)
 {
-    pt_t *pt = &pt_loc;
+    pt_t *pt = &localize.pt;
     PT_BEGIN(pt);
-    loc_t0 = board_ticks();
+    localize.t0 = board_ticks();
     if (L == 1) {
-        for (loc_w = 0; loc_w < 6; loc_w++) {
-            for (loc_side = 1; loc_side <= 6; loc_side++) {
-                WAIT_TICK(pt, (uint16_t)(loc_t0 + (6u * loc_w + loc_side - 1) * SLOT));
-                if (!neighbour(loc_side))
+        for (localize.w = 0; localize.w < 6; localize.w++) {
+            for (localize.side = 1; localize.side <= 6; localize.side++) {
+                WAIT_TICK(pt, slot_start(localize.w, localize.side));
+                if (!neighbour(localize.side))
                     continue;
-                IrSel(loc_side);
-                DELAY(pt, 2); /* more than the 0.38 ms multiplexer gap; the listener is there */
-                {
-                    uint8_t g = fold(loc_side + Yref), facing = fold(g + 3);
-                    pre_len = out_len = pre(out);
-                    out[out_len++] = BYTE_START;
-                    msg1_digits(&out[out_len], X + fw_sbyte(&NB_DX[g]), Y + fw_sbyte(&NB_DY[g]), facing);
-                }
-                TX(pt, UART1, out, pre_len); /* preamble and role, then '*' MSG1 */
-                TX(pt, UART1, out + pre_len, MSG1_LEN);
+                IrSel(localize.side);
+                DELAY(pt, LOCALIZE_MUX_SETTLE_TICKS);
+                LINE_SEND(pt, line_pre()); /* preamble and role, then '*' MSG1 */
+                LINE_SEND(pt, line_msg1(localize.side));
             }
         }
-        WAIT_TICK(pt, (uint16_t)(loc_t0 + 36u * SLOT));
+        WAIT_TICK(pt, (uint16_t)(localize.t0 + LOCALIZE_STEP_TICKS));
         IrSel(0);
         PT_EXIT(pt);
     }
-    loc_heard = 0;
-    for (loc_w = 1; loc_w <= 6; loc_w++) {
-        if (!neighbour(loc_w))
+    localize.heard = 0;
+    for (localize.w = 1; localize.w <= 6; localize.w++) {
+        if (!neighbour(localize.w))
             continue;
-        WAIT_TICK(pt, (uint16_t)(loc_t0 + 6u * (loc_w - 1) * SLOT));
-        IrSel(loc_w);
+        WAIT_TICK(pt, window_start(localize.w - 1));
+        IrSel(localize.w);
         do {
-            RX_TL(pt, UART1, ticks_until((uint16_t)(loc_t0 + 6u * loc_w * SLOT)), loc_byte);
-        } while (loc_byte != BYTE_START && loc_byte != ACK_TIMEOUT);
-        if (loc_byte != BYTE_START)
+            RX_TL(pt, UART1, ticks_until(window_start(localize.w)), localize.byte);
+        } while (localize.byte != BYTE_START && localize.byte != ACK_TIMEOUT);
+        if (localize.byte != BYTE_START)
             continue;
-        for (loc_side = 1; loc_side < MSG1_LEN; loc_side++) {
-            RX_TL(pt, UART1, HANDSHAKE_RETRY_TICKS, loc_body[loc_side]);
+        for (localize.k = 1; localize.k < MSG1_LEN; localize.k++) {
+            RX_TL(pt, UART1, LOCALIZE_BYTE_TICKS, localize.body[localize.k]);
         }
-        if (!msg1_valid(loc_body))
+        if (!msg1_valid(localize.body))
             continue;
-        X = msg1_coord(&loc_body[1]), Y = msg1_coord(&loc_body[4]);
-        Yref = (uint8_t)((((int16_t)loc_body[7] - loc_w) % 6 + 6) % 6);
+        X = msg1_coord(&localize.body[1]), Y = msg1_coord(&localize.body[4]);
+        Yref = (uint8_t)((((int16_t)localize.body[7] - localize.w) % 6 + 6) % 6);
         L = 1;
-        loc_heard = loc_body[7];
+        localize.heard = localize.body[7];
         break;
     }
     IrSel(0);
-    if (L && loc_heard && !v2_active) {
-        PT_CALL(pt, co_report_localized(loc_heard)); /* v1 PCs see the thesis report lines */
+    if (L && localize.heard && !v2_active) {
+        PT_CALL(pt, co_report_localized(localize.heard)); /* v1 PCs see the thesis report lines */
     }
     PT_END(pt);
 }
 #endif
 
 /* Ref(): become the reference module, then show the orientation. */
+static struct { pt_t pt; } ref;
+
 static uint8_t co_ref(void)
 {
-    if (pt_show.lc == 0) {
-        M = 0, S = 1, L = 1;
-        X = Y = 0;
-        Yref = 0;
-    }
-    return co_show_yref();
+    pt_t *pt = &ref.pt;
+    PT_BEGIN(pt);
+    M = 0, S = 1, L = 1;
+    X = Y = 0;
+    Yref = 0;
+    PT_CALL(pt, co_show_yref());
+    PT_END(pt);
 }
 
 #if HEXBOT_V2
 /* --- protocol v2: addressing, location report, addressed moves (docs/protocol.md) --- */
-static pt_t pt_pos;
-
-/* Report(): preamble, role, "POS" id x+128 y+128 yref flags, EOL. */
-static uint8_t co_position(void)
+/* Report(): pre, "POS" id x+128 y+128 yref flags, EOL. */
+static void line_position(void)
 {
-    pt_t *pt = &pt_pos;
-    PT_BEGIN(pt);
-    out_len = pre(out);
-    out[out_len++] = TXT_POS[0], out[out_len++] = TXT_POS[1], out[out_len++] = TXT_POS[2];
-    out[out_len++] = id;
-    out[out_len++] = (uint8_t)(X + COORD_OFFSET);
-    out[out_len++] = (uint8_t)(Y + COORD_OFFSET);
-    out[out_len++] = (uint8_t)(Yref % 6);
-    out[out_len++] = (uint8_t)((L ? 1 : 0) | (M ? 2 : 0) | (S ? 4 : 0));
-    out[out_len++] = TXT_EOL[0], out[out_len++] = TXT_EOL[1];
-    TX(pt, UART1, out, out_len);
-    PT_END(pt);
+    line_pre();
+    line_add3(TXT_POS);
+    line_add(id);
+    line_add((uint8_t)(X + COORD_OFFSET));
+    line_add((uint8_t)(Y + COORD_OFFSET));
+    line_add((uint8_t)(Yref % 6));
+    line_add((uint8_t)((L ? 1 : 0) | (M ? 2 : 0) | (S ? 4 : 0)));
+    line_eol();
 }
 
-/* Version(): preamble, role, "VER" major minor profile, EOL. */
-static uint8_t co_version(void)
+/* Version(): pre, "VER" major minor profile, EOL. */
+static void line_version(void)
 {
-    pt_t *pt = &pt_pos;
+    line_pre();
+    line_add3(TXT_VER);
+    line_add(FIRMWARE_VERSION_MAJOR), line_add(FIRMWARE_VERSION_MINOR);
+    line_add(PROFILE_V2_BYTE);
+    line_eol();
+}
+
+/* A command whose work is one line to the PC (Report, Version); the ACK follows it. */
+static struct { pt_t pt; } send_line;
+
+static uint8_t co_send_line(void (*build)(void))
+{
+    pt_t *pt = &send_line.pt;
     PT_BEGIN(pt);
-    out_len = pre(out);
-    out[out_len++] = TXT_VER[0], out[out_len++] = TXT_VER[1], out[out_len++] = TXT_VER[2];
-    out[out_len++] = FIRMWARE_VERSION_MAJOR, out[out_len++] = FIRMWARE_VERSION_MINOR;
-    out[out_len++] = PROFILE_V2_BYTE;
-    out[out_len++] = TXT_EOL[0], out[out_len++] = TXT_EOL[1];
-    TX(pt, UART1, out, out_len);
+    LINE_SEND(pt, build());
     PT_END(pt);
 }
 
@@ -579,25 +679,25 @@ static void moved(uint8_t mi, uint8_t cw)
 }
 
 /* Move(dir, mid, mi, sid, si, t1, t2, t3): the two named modules act at once. */
-static pt_t pt_move;
-static uint8_t move_ack, move_has_ack;
+static struct { pt_t pt; uint8_t cw, ack, has_ack; } move;
 
 static uint8_t co_move(const uint8_t *a)
 {
-    pt_t *pt = &pt_move;
+    pt_t *pt = &move.pt;
     PT_BEGIN(pt);
-    move_has_ack = 1;
+    move.cw = a[0] == 1; /* dir: 1 CW, 2 CCW */
+    move.has_ack = 1;
     if (id == a[1]) {
-        PT_CALL(pt, co_rotate(a[0] == 1 ? FC_MCW : FC_MCCW, a[2], a[5], a[6], a[7]));
-        move_ack = rot_ack;
-        if (L && (move_ack == FC_MCW || move_ack == FC_MCCW))
-            moved(a[2], a[0] == 1);
+        PT_CALL(pt, co_rotate(move.cw ? FC_MCW : FC_MCCW, a[2], a[5], a[6], a[7]));
+        move.ack = rotate.ack;
+        if (L && (move.ack == FC_MCW || move.ack == FC_MCCW))
+            moved(a[2], move.cw);
     } else if (id == a[3]) {
         substrate_turn = 1;
-        PT_CALL(pt, co_rotate(a[0] == 1 ? FC_SCW : FC_SCCW, a[4], a[5], a[6], a[7]));
-        move_ack = rot_ack;
+        PT_CALL(pt, co_rotate(move.cw ? FC_SCW : FC_SCCW, a[4], a[5], a[6], a[7]));
+        move.ack = rotate.ack;
     } else {
-        move_has_ack = 0;
+        move.has_ack = 0;
     }
     PT_END(pt);
 }
@@ -628,75 +728,72 @@ static uint8_t run_comm(uint8_t code, const uint8_t *a)
     case FC_JointTest: return co_blink(JNT_PORT, JNT_MASK, a[0], a[1]);
     case FC_LCircle: return co_circle(a[0], a[1]);
     case FC_LColor: case FC_LFlash1: case FC_LFlash2: return co_flash(code, a[0], a[1]);
-    case FC_LYref: return co_yref(a[0]);
+    case FC_LYref: return co_lyref(a[0]);
     case FC_LMCW: case FC_LMCCW: case FC_LSCW: case FC_LSCCW:
-        return co_rotation(&pt_mirror, rotation_steps(code), a[0], &a[1], mirror_act);
+        return co_rotation(&led_rotation, rotation_steps(code), a[0], &a[1], mirror_act);
     case FC_Ref: return co_ref();
     case FC_Localize: return co_localize();
     case FC_CW: case FC_CCW: return co_turn(code, a);
 #if HEXBOT_V2
-    case FC_Report: return co_position();
-    case FC_Version: return co_version();
+    case FC_Report: return co_send_line(line_position);
+    case FC_Version: return co_send_line(line_version);
 #endif
     default: return PT_DONE;
     }
 }
 
-static pt_t pt_dispatch;
-static uint8_t d_board, d_ack, d_has_ack, d_k;
+/* Run frame[] and decide the ACK byte (has_ack = 0: stay silent). */
+static struct { pt_t pt; uint8_t board, ack, has_ack, k, mirror; } dispatch;
 
-/* Execute frame[] and decide the ACK byte (d_has_ack = 0: stay silent). */
 static uint8_t co_dispatch(void)
 {
-    pt_t *pt = &pt_dispatch;
+    pt_t *pt = &dispatch.pt;
     PT_BEGIN(pt);
-    d_has_ack = 1;
-    d_board = fn_board(frame[0]);
+    dispatch.has_ack = 1;
+    dispatch.board = fn_board(frame[0]);
 #if HEXBOT_V2
     if (frame[0] == FC_Select) {
         select_modules(frame[1], frame[2], frame[3]);
-        d_ack = frame[0];
-        d_has_ack = addressed;
+        dispatch.ack = frame[0];
+        dispatch.has_ack = addressed;
         PT_EXIT(pt);
     }
     if (frame[0] == FC_Move) {
         PT_CALL(pt, co_move(&frame[1]));
-        d_ack = move_ack, d_has_ack = move_has_ack;
+        dispatch.ack = move.ack, dispatch.has_ack = move.has_ack;
         PT_EXIT(pt);
     }
     if (!selected) {
-        d_has_ack = 0;
+        dispatch.has_ack = 0;
         PT_EXIT(pt);
     }
 #else
     if (fn_is_v2(frame[0]))
-        d_board = BOARD_NONE; /* a thesis module does not know our codes */
+        dispatch.board = BOARD_NONE; /* a thesis module does not know our codes */
 #endif
-    if (d_board == BOARD_CONTROL) {
+    if (dispatch.board == BOARD_CONTROL) {
         PT_CALL(pt, co_relay(frame[0], &frame[1]));
-        d_ack = relay_result;
-        for (d_k = 0; d_k < 2; d_k++) {
-            PT_CALL(pt, run_comm(fn_mirror(frame[0], d_k), &frame[1]));
+        dispatch.ack = relay.result;
+        for (dispatch.k = 0; dispatch.k < 2; dispatch.k++) {
+            dispatch.mirror = fn_mirror(frame[0], dispatch.k); /* looked up once, not every step */
+            PT_CALL(pt, run_comm(dispatch.mirror, &frame[1]));
         }
-    } else if (d_board == BOARD_COMM) {
+    } else if (dispatch.board == BOARD_COMM) {
         PT_CALL(pt, run_comm(frame[0], &frame[1]));
-        d_ack = frame[0] == FC_CW || frame[0] == FC_CCW ? turn_ack : frame[0];
+        dispatch.ack = frame[0] == FC_CW || frame[0] == FC_CCW ? turn.ack : frame[0];
     } else {
-        d_ack = ACK_UNKNOWN;
+        dispatch.ack = ACK_UNKNOWN;
     }
 #if HEXBOT_V2
     if (v2_active && !addressed)
-        d_has_ack = 0; /* a broadcast: answers would collide on the centre channel */
+        dispatch.has_ack = 0; /* a broadcast: answers would collide on the centre channel */
 #endif
     PT_END(pt);
 }
 
-static pt_t pt_listen;
-static uint8_t l_byte, l_n;
-
 #if HEXBOT_V2
 /* The frame did not end in '#': it was garbage with a '*' in it. Keep what follows the
- * first '*' among frame[1..8] and the byte read in place of '#'; 0 if there is none. */
+ * first '*' among frame[1..8] and the byte read in place of '#'; 0xFF if there is none. */
 static uint8_t resync(void)
 {
     for (uint8_t k = 0; k < 10; k++) {
@@ -711,90 +808,89 @@ static uint8_t resync(void)
 }
 #endif
 
+static struct { pt_t pt; uint8_t byte, n; } listen;
+
 static uint8_t co_listen(void)
 {
-    pt_t *pt = &pt_listen;
+    pt_t *pt = &listen.pt;
     PT_BEGIN(pt);
     do {
-        RX(pt, UART1, l_byte);
-    } while (l_byte != BYTE_START);
-    for (l_n = 0; l_n < 9; l_n++) {
-        RX(pt, UART1, frame[l_n]);
+        RX(pt, UART1, listen.byte);
+    } while (listen.byte != BYTE_START);
+    for (listen.n = 0; listen.n < 9; listen.n++) {
+        RX(pt, UART1, frame[listen.n]);
     }
 #if HEXBOT_V2
     /* v2 reads the '#' too and resynchronises on a '*' inside a frame that lacks it */
     RX(pt, UART1, frame[9]);
     while (frame[9] != BYTE_END) {
-        l_n = resync();
-        if (l_n == 0xFF)
+        listen.n = resync();
+        if (listen.n == 0xFF)
             PT_EXIT(pt);
-        while (l_n < 9) {
-            RX(pt, UART1, frame[l_n]);
-            l_n++;
+        while (listen.n < 9) {
+            RX(pt, UART1, frame[listen.n]);
+            listen.n++;
         }
         RX(pt, UART1, frame[9]);
     }
 #endif
     substrate_turn = 0;
     PT_CALL(pt, co_dispatch());
-    if (!d_has_ack)
+    if (!dispatch.has_ack)
         PT_EXIT(pt);
     if (S || substrate_turn) {
         DELAY(pt, SUBSTRATE_ACK_DELAY_TICKS); /* let the mobile module answer first */
     }
-    out_len = pre(out);
-    out[out_len++] = TXT_ACK[0], out[out_len++] = TXT_ACK[1], out[out_len++] = TXT_ACK[2];
-    out[out_len++] = d_ack;
-    out[out_len++] = TXT_EOL[0], out[out_len++] = TXT_EOL[1];
-    TX(pt, UART1, out, out_len);
+    LINE_SEND(pt, line_ack(dispatch.ack));
     PT_END(pt);
 }
 
-/* --- main ------------------------------------------------------------------------------ */
-static pt_t pt_main;
-static uint8_t m_byte;
+/* --- the program: main() of Appendix A -------------------------------------------------- */
+static struct {
+    pt_t pt;
+    uint8_t byte; /* a handshake byte read, or the one to send */
 #if HEXBOT_V2
-static uint8_t m_timed_out;
+    uint8_t timed_out;
 #endif
+} program;
 
-static uint8_t co_main(void)
+static uint8_t co_program(void)
 {
-    pt_t *pt = &pt_main;
+    pt_t *pt = &program.pt;
     PT_BEGIN(pt);
     LOff();
     IrSel(0);
-    out_len = pre(out);
-    TX(pt, UART1, out, out_len);
+    LINE_SEND(pt, line_pre());
     TX_P(pt, UART1, S_COMM_READY);
     do {
-        RX(pt, UART0, m_byte);
-    } while (m_byte != BYTE_READY);
-    PT_CALL(pt, co_flash(FC_LFlash1, 3, 10));
+        RX(pt, UART0, program.byte);
+    } while (program.byte != BYTE_READY);
+    PT_CALL(pt, co_flash(FC_LFlash1, BOOT_FLASH_ROUNDS, BOOT_FLASH_TICKS));
     TX_P(pt, UART1, S_CTR_READY);
-    m_byte = BYTE_READY;
-    TX(pt, UART0, &m_byte, 1);
+    program.byte = BYTE_READY;
+    TX(pt, UART0, &program.byte, 1);
     for (;;) {
-        RX_TL(pt, UART0, HANDSHAKE_RETRY_TICKS, m_byte);
-        if (m_byte == BYTE_LISTENING)
+        RX_TL(pt, UART0, HANDSHAKE_RETRY_TICKS, program.byte);
+        if (program.byte == BYTE_LISTENING)
             break;
-        m_byte = BYTE_READY;
-        TX(pt, UART0, &m_byte, 1);
+        program.byte = BYTE_READY;
+        TX(pt, UART0, &program.byte, 1);
     }
 #if HEXBOT_V2
     /* the control board's DIP switches: any byte is an id, '~' (126) too; silence is none */
-    RX_TL2(pt, UART0, HANDSHAKE_RETRY_TICKS, m_byte, m_timed_out);
-    id = m_timed_out ? 0 : m_byte;
+    RX_TL2(pt, UART0, HANDSHAKE_RETRY_TICKS, program.byte, program.timed_out);
+    id = program.timed_out ? 0 : program.byte;
 #endif
-    PT_CALL(pt, co_flash(FC_LFlash2, 3, 10));
+    PT_CALL(pt, co_flash(FC_LFlash2, BOOT_FLASH_ROUNDS, BOOT_FLASH_TICKS));
     TX_P(pt, UART1, S_CTR_LST);
-    PT_CALL(pt, co_circle(1, 5));
+    PT_CALL(pt, co_circle(BOOT_CIRCLE_ROUNDS, BOOT_CIRCLE_TICKS));
 #if !HEXBOT_V2
     Yref = 1; /* the thesis assumed its test orientation instead of localizing */
 #endif
     IrSel(0);
     TX_P(pt, UART1, S_LOC); /* v2 keeps the banner for v1 PCs; it no longer claims L = 1 */
     IrSel(0);
-    PT_CALL(pt, co_flash(FC_LColor, 3, 10));
+    PT_CALL(pt, co_flash(FC_LColor, BOOT_FLASH_ROUNDS, BOOT_FLASH_TICKS));
     TX_P(pt, UART1, S_COMM_LST);
     for (;;) {
         PT_CALL(pt, co_listen());
@@ -804,5 +900,5 @@ static uint8_t co_main(void)
 
 void program_step(void)
 {
-    co_main();
+    co_program();
 }

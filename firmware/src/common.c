@@ -91,17 +91,18 @@ const int8_t *rotation_steps(uint8_t code)
     }
 }
 
-/* Walk (op, arg) pairs until (0, 0): act on i + arg, or wait t1/t2/t3 ticks. */
-uint8_t co_rotation(pt_t *pt, const int8_t *steps, uint8_t i, const uint8_t t[3],
+/* Walk (op, arg) pairs until (0, 0): act on i + arg, or wait t1/t2/t3 ticks. The walk's
+ * place is the caller's: r->step. */
+uint8_t co_rotation(rotation_t *r, const int8_t *steps, uint8_t i, const uint8_t t[3],
                     rotation_action act)
 {
-    static uint8_t s;
+    pt_t *pt = &r->pt;
     PT_BEGIN(pt);
-    for (s = 0; fw_byte(&steps[s]); s += 2) {
-        if (fw_byte(&steps[s]) == ROT_WAIT) {
-            DELAY(pt, t[fw_byte(&steps[s + 1]) - 1]);
+    for (r->step = 0; fw_byte(&steps[r->step]); r->step += 2) {
+        if (fw_byte(&steps[r->step]) == ROT_WAIT) {
+            DELAY(pt, t[fw_byte(&steps[r->step + 1]) - 1]);
         } else {
-            act(fw_byte(&steps[s]), (int16_t)i + fw_sbyte(&steps[s + 1]));
+            act(fw_byte(&steps[r->step]), (int16_t)i + fw_sbyte(&steps[r->step + 1]));
         }
     }
     PT_END(pt);

@@ -133,7 +133,7 @@ static uint8_t co_selftest(uint8_t switches)
 }
 #endif
 
-static pt_t pt_rotation;
+static rotation_t rotation;
 
 /* Run code with its arguments; PT_DONE when finished (at once for the instant ones). */
 static uint8_t execute(uint8_t code, const uint8_t *a)
@@ -150,7 +150,7 @@ static uint8_t execute(uint8_t code, const uint8_t *a)
     case FC_TurnOffAll: TurnOffAll(); return PT_DONE;
     case FC_JTest: case FC_SPTest: case FC_SNTest: return co_test(code, a[0], a[1]);
     case FC_MCW: case FC_MCCW: case FC_SCW: case FC_SCCW:
-        return co_rotation(&pt_rotation, rotation_steps(code), a[0], &a[1], rotation_act);
+        return co_rotation(&rotation, rotation_steps(code), a[0], &a[1], rotation_act);
 #if HEXBOT_V2
     case FC_SelfTest: return co_selftest(a[0]);
 #endif
@@ -168,7 +168,7 @@ static uint8_t co_main(void)
     PT_BEGIN(pt);
     DELAY(pt, BOOT_SETTLE_TICKS); /* let the supplies settle */
     TurnOffAll();
-    PT_CALL(pt, co_test(FC_JTest, 1, 5)); /* the joints click once: "ready" */
+    PT_CALL(pt, co_test(FC_JTest, BOOT_JTEST_ROUNDS, BOOT_JTEST_TICKS)); /* the joints click once: "ready" */
     TX_P(pt, UART1, S_PREAMBLE);
     TX_P(pt, UART1, S_CTR_READY);
     byte = BYTE_READY;
