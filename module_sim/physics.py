@@ -29,7 +29,7 @@ in short:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import Enum
 from typing import Any, Iterable, Sequence, Union
 
@@ -185,6 +185,57 @@ class _Plan:
     attract_body: Side  # substrate body side at the pivot facing the goal
 
 
+@dataclass(frozen=True)
+class Verdict:
+    """The judgement of one attempt at one instant (:meth:`MotionJudge._evaluate`).
+
+    Driven: ``plan`` is the move the drive makes (``ok``). Refused: ``reason``,
+    ``detail`` and ``data`` say why, as a :class:`MoveRefused` will; ``rank`` is how far
+    the checks got (the ranks below): an attempt that ends without a move reports the
+    furthest refusal it met."""
+
+    plan: _Plan | None = None
+    rank: int = -1
+    reason: Reason | None = None
+    detail: str = ""
+    data: dict[str, Any] = field(default_factory=dict, compare=False)
+
+    @property
+    def ok(self) -> bool:
+        return self.plan is not None
+
+    @classmethod
+    def refused(cls, rank: int, reason: Reason, detail: str, data: dict[str, Any]) -> "Verdict":
+        return cls(None, rank, reason, detail, data)
+
+
+@dataclass(slots=True)
+class _Trial:
+    """One evaluation under way: the mobile and its pivot, then what each check finds
+    (the substrate and the rule, the polarity sides) for the checks after it."""
+
+    mod: _Module
+    pivot_body: Joint
+    j: Joint  # the pivot, global
+    sub: _Module | None = None
+    rule: MoveRule | None = None
+    goal: Cell | None = None
+    sweep: tuple[Cell, ...] = ()
+    repel_body: Side | None = None
+    attract_body: Side | None = None
+
+    @property
+    def direction(self) -> Direction:
+        assert self.rule is not None
+        return self.rule.direction
+
+    def refuse(self, rank: int, reason: Reason, detail: str, **data: Any) -> Verdict:
+        """A refusal in the words of a :class:`MoveRefused`: the mobile named first, the
+        pivot (global) in the data."""
+        data.setdefault("pivot_joint_global", int(self.j))
+        return Verdict.refused(rank, reason, f"{self.mod.id}: {detail}", data)
+
+
 @dataclass
 class _Attempt:
     """A module showing a negative pair at body joint ``pivot_body``."""
@@ -194,7 +245,7 @@ class _Attempt:
     done: bool = False  # moved, or superseded: no refusal when it closes
     drive_since: int | None = None
     plan: _Plan | None = None
-    best: tuple[int, Reason, str, dict[str, Any]] | None = None  # (rank, ...) furthest failure
+    best: Verdict | None = None  # the furthest refusal met
 
 
 @dataclass
@@ -411,8 +462,9 @@ class MotionJudge:
             return MoveRefused(mod.id, self._now, Reason.TOO_SHORT,
                                f"{mod.id}: magnet pair at body joint {int(a.pivot_body)} "
                                "on for no time", {"held_ns": 0})
-        _, reason, detail, data = a.best
-        return MoveRefused(mod.id, self._now, reason, detail, data)
+        best = a.best
+        assert best.reason is not None
+        return MoveRefused(mod.id, self._now, best.reason, best.detail, best.data)
 
     def _evaluate_all(self, out: list[Outcome]) -> None:
         for mod in self._attempting():
@@ -421,29 +473,37 @@ class MotionJudge:
             for a in mod.attempts.values():
                 if a.done:
                     continue
-                ok, rank, reason, detail, data, plan = self._evaluate(mod, a.pivot_body)
-                if ok:
+                verdict = self._evaluate(mod, a.pivot_body)
+                if verdict.ok:
                     if a.drive_since is None:
                         a.drive_since = self._now
-                    a.plan = plan
+                    a.plan = verdict.plan
                     continue
-                if a.drive_since is not None:  # the drive broke before break-away
-                    held = self._now - a.drive_since
-                    a.drive_since = None
-                    if reason in _WORLD_REASONS:
-                        self._note(a, _R_PREEMPTED, reason, detail, data)
-                    elif held > 0:
-                        self._note(a, _R_TOO_SHORT, Reason.TOO_SHORT,
-                                   f"{mod.id}: drive held {held / 1e6:.1f} ms < break-away "
-                                   f"{self.params.breakaway_ns / 1e6:.1f} ms (then {reason.value})",
-                                   {"held_ns": held, "breakaway_ns": self.params.breakaway_ns,
-                                    "then": reason.value})
-                self._note(a, rank, reason, detail, data)
+                if a.drive_since is not None:
+                    self._drive_broke(mod, a, verdict)
+                self._note(a, verdict)
+
+    def _drive_broke(self, mod: _Module, a: _Attempt, verdict: Verdict) -> None:
+        """The drive of ``a`` broke before break-away (``verdict`` says why): a world
+        cause is the diagnosis (another module got there first); otherwise, if it had
+        lasted at all, the drive was too short."""
+        assert a.drive_since is not None and verdict.reason is not None
+        held = self._now - a.drive_since
+        a.drive_since = None
+        if verdict.reason in _WORLD_REASONS:
+            self._note(a, replace(verdict, rank=_R_PREEMPTED))
+        elif held > 0:
+            breakaway = self.params.breakaway_ns
+            self._note(a, Verdict.refused(
+                _R_TOO_SHORT, Reason.TOO_SHORT,
+                f"{mod.id}: drive held {held / 1e6:.1f} ms < break-away "
+                f"{breakaway / 1e6:.1f} ms (then {verdict.reason.value})",
+                {"held_ns": held, "breakaway_ns": breakaway, "then": verdict.reason.value}))
 
     @staticmethod
-    def _note(a: _Attempt, rank: int, reason: Reason, detail: str, data: dict[str, Any]) -> None:
-        if a.best is None or rank > a.best[0]:  # ties keep the first: the clearest moment
-            a.best = (rank, reason, detail, data)
+    def _note(a: _Attempt, verdict: Verdict) -> None:
+        if a.best is None or verdict.rank > a.best.rank:  # ties keep the first: the clearest moment
+            a.best = verdict
 
     def _occupant(self, cell: Cell) -> str | None:
         """What blocks ``cell``: a module id, ``"obstacle"``, or a reservation."""
@@ -455,29 +515,54 @@ class MotionJudge:
             return f"reserved by {self._reserved[cell]} in flight"
         return None
 
-    def _evaluate(self, mod: _Module, pivot_body: Joint
-                  ) -> tuple[bool, int, Reason, str, dict[str, Any], _Plan | None]:
-        """Is the rotation about ``pivot_body`` driven right now? (ok, rank, reason, ...)."""
-        j = Joint.of(pivot_body + mod.orientation)
-        name = mod.id
+    def _evaluate(self, mod: _Module, pivot_body: Joint) -> Verdict:
+        """Is the rotation about ``pivot_body`` driven right now? The checks below, in
+        this order: the first that refuses is the verdict; if none does, the drive's move."""
+        t = _Trial(mod, pivot_body, Joint.of(pivot_body + mod.orientation))
+        for check in (
+            self._not_fixed,            # the fixed module never moves
+            self._no_relay_fight,       # the mobile's pair: no side with both relays on
+            self._not_a_substrate,      # nobody's move in flight pivots on the mobile
+            self._substrate_found,      # a module touches the pivot (the repelling one of two)
+            self._substrate_still,      # ... and is not itself moving
+            self._goal_free,            # Table 4-3's goal cell: no module, obstacle, reservation
+            self._sweep_free,           # ... and its sweep cells
+            self._substrate_polarity,   # the substrate repels the mobile and attracts it to the goal
+            self._latches_released,     # every latch open but the hinge at the pivot
+        ):
+            verdict = check(t)
+            if verdict is not None:
+                return verdict
+        assert t.sub is not None and t.rule is not None and t.goal is not None
+        assert t.repel_body is not None and t.attract_body is not None
+        return Verdict(_Plan(t.rule, t.sub.id, t.goal, t.sweep, t.repel_body, t.attract_body))
 
-        def fail(rank: int, reason: Reason, detail: str, **data: Any):
-            data.setdefault("pivot_joint_global", int(j))
-            return False, rank, reason, f"{name}: {detail}", data, None
+    def _not_fixed(self, t: _Trial) -> Verdict | None:
+        if t.mod.fixed:
+            return t.refuse(_R_FIXED, Reason.FIXED_MODULE, "the fixed module cannot move")
+        return None
 
-        if mod.fixed:
-            return fail(_R_FIXED, Reason.FIXED_MODULE, "the fixed module cannot move")
-        pair = (Side.of(pivot_body - 1), Side(int(pivot_body)))
-        bad = [int(s) for s in pair if mod.magnets[s - 1] == MAG_BOTH]
+    def _no_relay_fight(self, t: _Trial) -> Verdict | None:
+        pair = (Side.of(t.pivot_body - 1), Side(int(t.pivot_body)))
+        bad = [int(s) for s in pair if t.mod.magnets[s - 1] == MAG_BOTH]
         if bad:
-            return fail(_R_BOTH, Reason.BOTH_RELAYS,
-                        f"both relays on at body side(s) {bad}", body_sides=bad)
-        for f in self._flights.values():
-            if f.plan.substrate == name:
-                return fail(_R_SUPPORT, Reason.SUPPORTING_MOVE,
-                            f"is the substrate of {f.module}'s move in flight", mover=f.module)
+            return t.refuse(_R_BOTH, Reason.BOTH_RELAYS,
+                            f"both relays on at body side(s) {bad}", body_sides=bad)
+        return None
 
-        # --- who is the substrate? One of the two cells touching the pivot vertex.
+    def _not_a_substrate(self, t: _Trial) -> Verdict | None:
+        for f in self._flights.values():
+            if f.plan.substrate == t.mod.id:
+                return t.refuse(_R_SUPPORT, Reason.SUPPORTING_MOVE,
+                                f"is the substrate of {f.module}'s move in flight", mover=f.module)
+        return None
+
+    def _substrate_found(self, t: _Trial) -> Verdict | None:
+        """One of the two cells touching the pivot vertex holds the substrate; where both
+        do, the one repelling the mobile is meant (Hexmove's rule: the repelling side
+        decides the direction), and the goal is then taken. Sets the substrate, the rule,
+        its goal and sweep."""
+        mod, j = t.mod, t.j
         candidates: list[tuple[Direction, _Module]] = []
         for d in (Direction.CW, Direction.CCW):
             occ = self._at.get(substrate_cell(mod.cell, j, d))
@@ -485,12 +570,10 @@ class MotionJudge:
                 candidates.append((d, self._mods[occ]))
         if not candidates:
             cells = [str(substrate_cell(mod.cell, j, d)) for d in Direction]
-            return fail(_R_SUBSTRATE, Reason.MISSING_SUBSTRATE,
-                        f"no module touches pivot joint {int(j)} (cells {', '.join(cells)})",
-                        cells=cells)
+            return t.refuse(_R_SUBSTRATE, Reason.MISSING_SUBSTRATE,
+                            f"no module touches pivot joint {int(j)} (cells {', '.join(cells)})",
+                            cells=cells)
         if len(candidates) == 2:
-            # both cells occupied: the one repelling the mobile is the intended substrate
-            # (Hexmove's rule: the repelling side decides the direction); the goal is then taken.
             def repels(dm: tuple[Direction, _Module]) -> bool:
                 d, s = dm
                 facing = (j if d is Direction.CW else j - 1) + 3
@@ -498,63 +581,81 @@ class MotionJudge:
             repelling = [dm for dm in candidates if repels(dm)]
             if len(repelling) != 1:  # no way to tell which is meant: either way no goal
                 both = ", ".join(f"{s.id} at {s.cell}" for _, s in candidates)
-                return fail(_R_GOAL, Reason.GOAL_OCCUPIED,
-                            f"both cells touching pivot joint {int(j)} are taken ({both}): "
-                            "no free goal", by=[s.id for _, s in candidates])
+                return t.refuse(_R_GOAL, Reason.GOAL_OCCUPIED,
+                                f"both cells touching pivot joint {int(j)} are taken ({both}): "
+                                "no free goal", by=[s.id for _, s in candidates])
             candidates = repelling
-        direction, sub = candidates[0]
-        rule = move_rule(j, direction)
-        sub_cell, sweep, goal = rule.cells(mod.cell)
-        assert sub_cell == sub.cell  # Table 4-3 and the vertex geometry agree
-        if sub.id in self._flights:
-            return fail(_R_SUB_MOVING, Reason.SUBSTRATE_MOVING,
-                        f"substrate {sub.id} is itself moving", substrate=sub.id)
-        blocker = self._occupant(goal)
+        direction, t.sub = candidates[0]
+        t.rule = move_rule(j, direction)
+        sub_cell, t.sweep, t.goal = t.rule.cells(mod.cell)
+        assert sub_cell == t.sub.cell  # Table 4-3 and the vertex geometry agree
+        return None
+
+    def _substrate_still(self, t: _Trial) -> Verdict | None:
+        assert t.sub is not None
+        if t.sub.id in self._flights:
+            return t.refuse(_R_SUB_MOVING, Reason.SUBSTRATE_MOVING,
+                            f"substrate {t.sub.id} is itself moving", substrate=t.sub.id)
+        return None
+
+    def _goal_free(self, t: _Trial) -> Verdict | None:
+        assert t.goal is not None
+        blocker = self._occupant(t.goal)
         if blocker is not None:
-            return fail(_R_GOAL, Reason.GOAL_OCCUPIED,
-                        f"goal {goal} of {direction.value} about joint {int(j)} is taken "
-                        f"({blocker})", goal=[goal.x, goal.y], by=blocker)
-        blocked = [(c, b) for c in sweep if (b := self._occupant(c)) is not None]
+            return t.refuse(_R_GOAL, Reason.GOAL_OCCUPIED,
+                            f"goal {t.goal} of {t.direction.value} about joint {int(t.j)} is "
+                            f"taken ({blocker})", goal=[t.goal.x, t.goal.y], by=blocker)
+        return None
+
+    def _sweep_free(self, t: _Trial) -> Verdict | None:
+        blocked = [(c, b) for c in t.sweep if (b := self._occupant(c)) is not None]
         if blocked:
             txt = ", ".join(f"{c} ({b})" for c, b in blocked)
-            return fail(_R_SWEEP, Reason.SWEEP_OCCUPIED,
-                        f"sweep of {direction.value} about joint {int(j)} blocked: {txt}",
-                        cells=[[c.x, c.y] for c, _ in blocked], by=[b for _, b in blocked])
+            return t.refuse(_R_SWEEP, Reason.SWEEP_OCCUPIED,
+                            f"sweep of {t.direction.value} about joint {int(t.j)} blocked: {txt}",
+                            cells=[[c.x, c.y] for c, _ in blocked], by=[b for _, b in blocked])
+        return None
 
-        # --- polarities of the substrate's two sides at the pivot.
-        toward = j if direction is Direction.CW else j - 1  # mobile's global side to sub
+    def _substrate_polarity(self, t: _Trial) -> Verdict | None:
+        """The substrate's side facing the mobile repels (negative), its other side at the
+        pivot attracts (positive). Sets those two body sides."""
+        sub, j, cw = t.sub, t.j, t.direction is Direction.CW
+        assert sub is not None
+        toward = j if cw else j - 1  # mobile's global side to sub
         repel_g = Side.of(toward + 3)
-        attract_g = Side.of(j + 4) if direction is Direction.CW else Side.of(j + 1)
-        repel_b, attract_b = sub.body_side(repel_g), sub.body_side(attract_g)
+        attract_g = Side.of(j + 4) if cw else Side.of(j + 1)
+        repel_b, attract_b = t.repel_body, t.attract_body = (sub.body_side(repel_g),
+                                                             sub.body_side(attract_g))
         rv, av = sub.magnet(repel_g), sub.magnet(attract_g)
         pol = {"substrate": sub.id, "repel_body_side": int(repel_b),
                "attract_body_side": int(attract_b), "repel": rv, "attract": av}
         if MAG_BOTH in (rv, av):
-            return fail(_R_BOTH, Reason.BOTH_RELAYS,
-                        f"substrate {sub.id} has both relays on at a pivot side", **pol)
+            return t.refuse(_R_BOTH, Reason.BOTH_RELAYS,
+                            f"substrate {sub.id} has both relays on at a pivot side", **pol)
         if rv != MAG_NEG:
-            return fail(_R_REPEL_OFF if rv == MAG_OFF else _R_REPEL_WRONG,
-                        Reason.WRONG_POLARITY,
-                        f"substrate {sub.id} body side {int(repel_b)} facing the mobile is "
-                        f"{_pol(rv)}, needs negative (repulsion)", **pol)
+            return t.refuse(_R_REPEL_OFF if rv == MAG_OFF else _R_REPEL_WRONG,
+                            Reason.WRONG_POLARITY,
+                            f"substrate {sub.id} body side {int(repel_b)} facing the mobile is "
+                            f"{_pol(rv)}, needs negative (repulsion)", **pol)
         if av != MAG_POS:
-            return fail(_R_ATTRACT_OFF if av == MAG_OFF else _R_ATTRACT_NEG,
-                        Reason.WRONG_POLARITY if av == MAG_OFF else Reason.NO_ATTRACTION,
-                        f"substrate {sub.id} body side {int(attract_b)} is {_pol(av)}, needs "
-                        "positive (attraction)"
-                        + (" -- both substrate sides negative (SCCW defect?)"
-                           if av == MAG_NEG else ""), **pol)
+            return t.refuse(_R_ATTRACT_OFF if av == MAG_OFF else _R_ATTRACT_NEG,
+                            Reason.WRONG_POLARITY if av == MAG_OFF else Reason.NO_ATTRACTION,
+                            f"substrate {sub.id} body side {int(attract_b)} is {_pol(av)}, "
+                            "needs positive (attraction)"
+                            + (" -- both substrate sides negative (SCCW defect?)"
+                               if av == MAG_NEG else ""), **pol)
+        return None
 
-        # --- every latch released except the hinge at the pivot vertex.
-        latched = self._latches(mod, exempt_vertex=(sub.id, j))
+    def _latches_released(self, t: _Trial) -> Verdict | None:
+        assert t.sub is not None
+        latched = self._latches(t.mod, exempt_vertex=(t.sub.id, t.j))
         if latched:
             txt = "; ".join(f"{x['neighbour']} at global joint {x['vertex']} "
                             f"({x['owner']}'s solenoid J{x['owner_joint']} closed)"
                             for x in latched)
-            return fail(_R_LATCH, Reason.NEIGHBOUR_LATCHED, f"still latched: {txt}",
-                        latches=latched)
-        plan = _Plan(rule, sub.id, goal, sweep, repel_b, attract_b)
-        return True, _R_TOO_SHORT, Reason.TOO_SHORT, "", {}, plan
+            return t.refuse(_R_LATCH, Reason.NEIGHBOUR_LATCHED, f"still latched: {txt}",
+                            latches=latched)
+        return None
 
     def _latches(self, mod: _Module, exempt_vertex: tuple[str, Joint] | None
                  ) -> list[dict[str, Any]]:
@@ -578,10 +679,11 @@ class MotionJudge:
 
     def _break_away(self, mod: _Module, pivot_body: Joint, out: list[Outcome]) -> None:
         a = mod.attempts[pivot_body]
-        ok, rank, reason, detail, data, plan = self._evaluate(mod, pivot_body)
-        if not ok or plan is None:  # cannot happen: every change re-evaluates; be safe
+        verdict = self._evaluate(mod, pivot_body)
+        plan = verdict.plan
+        if plan is None:  # cannot happen: every change re-evaluates; be safe
             a.drive_since = None
-            self._note(a, rank, reason, detail, data)
+            self._note(a, verdict)
             return
         started = a.drive_since
         assert started is not None
