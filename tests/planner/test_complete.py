@@ -246,6 +246,25 @@ def test_unreachable_small_instance_is_proven_unreachable():
     validate(plan)
 
 
+@pytest.mark.parametrize("problem, phase, lone_walks", [
+    (random_convex_problem(60, 0), "front walks", True),        # phase 0 finishes at scale
+    (random_sparse_problem(100, 0), "forward", True),            # phase 1 alone
+    (random_problem(12, 0), "forward", False),                   # the relays
+    (random_problem(30, 1), "reverse problem", False),
+    (Problem.of({(0, 0), (1, 0)}, {(0, 0), (-1, 0)}, (0, 0),     # walled off: the exact
+                obstacles={(0, 1), (1, -1)}), "stuck", False),   # search proves it
+])
+def test_the_phase_that_keeps_the_plan_says_so(problem, phase, lone_walks):
+    # Each phase either keeps a plan or leaves its results to the next; the plan kept
+    # names its phase, and lone walks (only those) are not shortened afterwards.
+    plan = Plan("complete", problem)
+    kept = phases._plan_phases(plan, phases.EXACT_LIMIT)
+    assert (kept.phase, kept.lone_walks) == (phase, lone_walks)
+    assert (plan.steps, plan.ok) == (kept.steps, kept.ok)
+    assert plan.ok is (phase != "stuck")
+    validate(plan)
+
+
 def test_reverse_steps_undo_a_plan():
     problem = random_problem(10, 4)
     plan = _check(problem)
