@@ -2,19 +2,24 @@
 
 Cells are ``[x, y]`` lists, or a thesis-style 0/1 matrix (list of row strings
 such as ``"1 0 1"``; spec §2). Built-in scenarios live in ``bus/scenarios/``.
-A malformed file raises :class:`ScenarioError` naming the file, the line or key,
-and what was expected.
+The keys, their types and ranges are declared in :data:`SCHEMA` (a JSON Schema); what a
+schema cannot say (one cell per module, connected structures, the fixed module in the
+goal) is checked by the named steps of ``_build``. A malformed file raises a one-line
+:class:`ScenarioError` naming the file, the line of the key, and what was expected.
 """
 
 from __future__ import annotations
 
 import difflib
+import functools
 import re
 import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
+
+import fastjsonschema
 
 from .errors import HexbenchError
 from .faults import ActuatorFault, FaultSpecError
@@ -24,10 +29,6 @@ PROFILES = ("v2", "thesis-2009")
 #: virtual: the Python model in the fleet; real: a board behind serial ports; firmware: the
 #: C firmware in simavr behind ptys (hil.firmware), bridged like a real board.
 KINDS = ("virtual", "real", "firmware")
-_TOP_KEYS = {"name", "description", "profile", "seed", "fixed", "goal", "goal_matrix", "initial",
-             "initial_matrix", "obstacles", "modules", "ir_baud", "bit_error_rate", "faults",
-             "program"}
-_MODULE_KEYS = {"cell", "id", "kind", "orientation", "port", "debug_port", "program"}
 #: What runs on a virtual module: the Python programs ("model") or the C firmware compiled
 #: for the host ("firmware", module_sim.firmware).
 PROGRAMS = ("model", "firmware")
@@ -117,30 +118,320 @@ def loads(text: str, source: str = "<string>") -> Scenario:
     return _build(data, source, text)
 
 
-def _line_of(text: str, key: str) -> str:
-    for n, line in enumerate(text.splitlines(), 1):
-        if re.match(rf"\s*{re.escape(key)}\s*=", line):
-            return f"line {n}, "
-    return ""
-
-
-def _err(source: str, text: str, key: str, expected: str, got: Any) -> ScenarioError:
-    leaf = key.rsplit(".", 1)[-1].split("[")[0]
-    return ScenarioError(f"{source}: {_line_of(text, leaf)}key '{key}': expected {expected}, got {got!r}")
-
-
 #: Coordinates a module can be told and report: MSG1 carries two decimal digits and a sign.
 COORD_LIMIT = 99
 
+# --- the schema ----------------------------------------------------------------------
+# Every key of a scenario file, its type and range, as a JSON Schema (draft 4: there an
+# integer is never 1.0) checked by fastjsonschema. Each "description" is what an error
+# says was expected at that key; a failure further down (an item of a cell) is reported
+# at the nearest key above it that has one. What a schema cannot say (one cell per
+# module, a connected fleet, the fixed module in the goal) the steps of _build check.
+_CELL = {"description": "a cell [x, y] of two integers", "type": "array",
+         "items": {"type": "integer"}, "minItems": 2, "maxItems": 2}
+_CELLS = {"description": "a list of cells [[x, y], ...]", "type": "array", "items": _CELL}
+_MATRIX = {"description": 'a thesis 0/1 matrix: a list of row strings like "1 0 1"',
+           "type": "array", "items": {"type": "string"}, "minItems": 1}
+_SERIAL_URL = {"description": "a serial URL string", "type": "string"}
+_PROGRAM = {"description": "'model' or 'firmware'", "enum": list(PROGRAMS)}
+_MODULE = {
+    "description": "a table with cell, id, kind", "type": "object",
+    "additionalProperties": False, "required": ["cell"],
+    "properties": {
+        "cell": _CELL,
+        "id": {"description": "a hardware id 1..255 (the DIP switches)", "type": "integer",
+               "minimum": 1, "maximum": 255},
+        "kind": {"description": "'virtual', 'real' or 'firmware'", "enum": list(KINDS)},
+        "orientation": {"description": "an integer 0..5 (60-degree steps)", "type": "integer",
+                        "minimum": 0, "maximum": 5},
+        "port": _SERIAL_URL,
+        "debug_port": _SERIAL_URL,
+        "program": _PROGRAM,
+    },
+}
+SCHEMA: dict[str, Any] = {
+    "$schema": "http://json-schema.org/draft-04/schema#",
+    "type": "object", "additionalProperties": False,
+    "properties": {
+        "name": {"description": "a string", "type": "string"},
+        "description": {"description": "a string", "type": "string"},
+        "profile": {"description": " or ".join(repr(p) for p in PROFILES), "enum": list(PROFILES)},
+        "seed": {"description": "an integer", "type": "integer"},
+        "modules": {"description": "an array of tables [[modules]]", "type": "array",
+                    "items": _MODULE},
+        "initial": _CELLS,
+        "initial_matrix": _MATRIX,
+        "goal": _CELLS,
+        "goal_matrix": _MATRIX,
+        "fixed": _CELL,
+        "obstacles": _CELLS,
+        "program": _PROGRAM,
+        "ir_baud": {"description": "a positive baud rate", "type": "integer", "minimum": 1},
+        "bit_error_rate": {"description": "a probability 0 <= p < 1", "type": "number",
+                           "minimum": 0, "maximum": 1, "exclusiveMaximum": True},
+        "faults": {"description": 'an array of fault strings such as "m3.S2-:off"',
+                   "type": "array", "items": {"type": "string"}},
+    },
+}
 
-def _cell(v: Any, key: str, source: str, text: str) -> Cell:
-    if (isinstance(v, list) and len(v) == 2 and all(isinstance(c, int) and not isinstance(c, bool)
-                                                    for c in v)):
-        if max(abs(v[0]), abs(v[1])) > COORD_LIMIT:
-            raise _err(source, text, key, f"coordinates within -{COORD_LIMIT}..{COORD_LIMIT} "
-                       "(what MSG1 can carry)", v)
-        return Cell(v[0], v[1])
-    raise _err(source, text, key, "a cell [x, y] of two integers", v)
+
+@functools.cache
+def _validator() -> Callable[[Any], Any]:
+    return fastjsonschema.compile(SCHEMA)
+
+
+def _build(d: dict[str, Any], source: str, text: str) -> Scenario:
+    """The scenario of a parsed file, checked step by step: the first problem raises a
+    one-line :class:`ScenarioError` naming the file, the line of the key, and what was
+    expected there."""
+    at = _Where(source, text)
+    _check_schema(d, at)                            # every key known, of its type and range
+    modules = _fleet(d, at)                         # distinct cells and ids, one structure
+    goal = _goal(d, modules, at)                    # a distinct goal cell per module
+    fixed = _fixed(d, modules, goal, at)            # a module's cell, also in the goal
+    obstacles = _obstacles(d, modules, goal, at)    # clear of modules and goals
+    faults = _faults(d, modules, at)                # each on a module of the fleet
+    program, ir_baud = d.get("program", "model"), d.get("ir_baud", 300)
+    _firmware_baud(program, ir_baud, modules, at)   # the C programs talk at 300 baud
+    name = d.get("name", Path(source).stem if not source.startswith("<") else "scenario")
+    return Scenario(name=name, modules=modules, fixed=fixed, goal=goal, obstacles=obstacles,
+                    profile=d.get("profile", "v2"), seed=d.get("seed", 0),
+                    description=d.get("description", ""), source=source, ir_baud=ir_baud,
+                    bit_error_rate=float(d.get("bit_error_rate", 0.0)), faults=faults,
+                    program=program)
+
+
+# --- where a problem is: keys to lines ---------------------------------------------------
+#: A path into the file, as ``("modules", 1, "kind")`` for ``modules[1].kind``.
+Key = tuple[str | int, ...]
+
+_ARRAY_TABLE = re.compile(r"\s*\[\[\s*([\w-]+)\s*\]\]")
+_TABLE = re.compile(r"\s*\[\s*([\w.-]+)\s*\]")
+_KEY_LINE = re.compile(r"""\s*("[^"]*"|'[^']*'|[\w-]+)\s*=""")
+_MULTILINE_QUOTES = ('"' * 3, "'" * 3)
+
+
+class _Where:
+    """The file a scenario comes from: its name, and the line each key is on."""
+
+    def __init__(self, source: str, text: str) -> None:
+        self.source = source
+        self.lines = _key_lines(text)
+
+    def line(self, key: Key) -> str:
+        """``"line N, "``: the line of ``key``, else of the nearest key above it (a
+        table's header, an array's key); ``""`` if none is known."""
+        for n in range(len(key), 0, -1):
+            if key[:n] in self.lines:
+                return f"line {self.lines[key[:n]]}, "
+        return ""
+
+    def error(self, message: str, key: Key = ()) -> ScenarioError:
+        return ScenarioError(f"{self.source}: {self.line(key)}{message}")
+
+    def expected(self, key: Key, expected: str, got: Any) -> ScenarioError:
+        return self.error(f"key '{_dotted(key)}': expected {expected}, got {got!r}", key)
+
+
+def _key_lines(text: str) -> dict[Key, int]:
+    """The line of every top-level key, table header (the second ``[[modules]]`` is
+    ``("modules", 1)``) and key of a table, read from the text (tomllib keeps no
+    positions); lines inside multi-line strings hold no keys."""
+    lines: dict[Key, int] = {}
+    table: Key = ()
+    count: dict[str, int] = {}
+    in_string = False
+    for n, line in enumerate(text.splitlines(), 1):
+        if not in_string:
+            if m := _ARRAY_TABLE.match(line):
+                name = m.group(1)
+                table = (name, count.get(name, 0))
+                count[name] = count.get(name, 0) + 1
+                lines.setdefault(table, n)
+            elif m := _TABLE.match(line):
+                table = tuple(m.group(1).split("."))
+                lines.setdefault(table, n)
+            elif m := _KEY_LINE.match(line):
+                lines.setdefault((*table, m.group(1).strip("'\"")), n)
+        if sum(line.count(q) for q in _MULTILINE_QUOTES) % 2:
+            in_string = not in_string
+    return lines
+
+
+def _dotted(key: Key) -> str:
+    """``("modules", 1, "kind")`` as a reader writes it: ``modules[1].kind``."""
+    out = ""
+    for part in key:
+        out += f"[{part}]" if isinstance(part, int) else f".{part}" if out else part
+    return out
+
+
+def _at(d: Any, key: Key) -> Any:
+    return functools.reduce(lambda v, part: v[part], key, d)
+
+
+# --- the steps of _build -----------------------------------------------------------------
+def _check_schema(d: dict[str, Any], at: _Where) -> None:
+    """Every key known, of its type and range (:data:`SCHEMA`)."""
+    try:
+        _validator()(d)
+    except fastjsonschema.JsonSchemaValueException as exc:
+        raise _schema_error(exc, d, at) from None
+
+
+def _schema_error(exc: fastjsonschema.JsonSchemaValueException, d: dict[str, Any],
+                  at: _Where) -> ScenarioError:
+    """A schema failure in a user's words: the key and its line, what was expected
+    there, what is there (an unknown key: the keys expected, the closest first)."""
+    path: Key = tuple(int(p) if p.isdigit() else p for p in exc.path[1:])
+    nodes = [SCHEMA]        # the schema at each step of the path
+    for part in path:
+        nodes.append(nodes[-1]["items"] if isinstance(part, int)
+                     else nodes[-1]["properties"][part])
+    node, value = nodes[-1], _at(d, path)
+    if exc.rule == "additionalProperties":
+        allowed = sorted(node["properties"])
+        k = sorted(set(value) - set(allowed))[0]
+        close = difflib.get_close_matches(k, allowed, n=1)
+        hint = f" (did you mean '{close[0]}'?)" if close else ""
+        return at.error(f"unknown key '{_dotted((*path, k))}'{hint}; expected one of: "
+                        f"{', '.join(allowed)}", (*path, k))
+    if exc.rule == "required":
+        k = next(k for k in node["required"] if k not in value)
+        return at.error(f"key '{_dotted((*path, k))}' is missing: expected "
+                        f"{node['properties'][k]['description']}", path)
+    depth = max(n for n, node in enumerate(nodes) if "description" in node)
+    return at.expected(path[:depth], nodes[depth]["description"], _at(d, path[:depth]))
+
+
+def _cell(v: list[int], key: Key, at: _Where) -> Cell:
+    if max(abs(v[0]), abs(v[1])) > COORD_LIMIT:
+        raise at.expected(key, f"coordinates within -{COORD_LIMIT}..{COORD_LIMIT} "
+                          "(what MSG1 can carry)", v)
+    return Cell(v[0], v[1])
+
+
+def _cells(v: list[list[int]], key: str, at: _Where) -> list[Cell]:
+    return [_cell(c, (key, i), at) for i, c in enumerate(v)]
+
+
+def _matrix(v: list[str], key: str, at: _Where) -> list[Cell]:
+    try:
+        return matrix_to_cells(v)
+    except ValueError as exc:
+        raise at.expected((key,), f"a thesis 0/1 matrix ({exc})", v) from None
+
+
+def _fleet(d: dict[str, Any], at: _Where) -> list[ModuleSpec]:
+    """The modules, from ``[[modules]]``, or from ``initial`` or ``initial_matrix`` (ids
+    1, 2, ...): at least one, no two on one cell or with one id, one connected structure."""
+    modules: list[ModuleSpec] = []
+    placed: list[Key] = []      # per module, the key that places it
+    for i, m in enumerate(d.get("modules", [])):
+        modules.append(ModuleSpec(m.get("id", i + 1), _cell(m["cell"], ("modules", i, "cell"), at),
+                                  m.get("kind", "virtual"), m.get("orientation", 0),
+                                  m.get("port"), m.get("debug_port"), m.get("program")))
+        placed.append(("modules", i, "cell"))
+    for key, parse in (("initial", _cells), ("initial_matrix", _matrix)):
+        if key in d:
+            if modules:
+                raise at.error(f"key '{key}': give the fleet either as [[modules]] or as "
+                               "initial cells, not both", (key,))
+            cells = parse(d[key], key, at)
+            modules.extend(ModuleSpec(k + 1, c) for k, c in enumerate(cells))
+            placed.extend((key, k) if key == "initial" else (key,) for k in range(len(cells)))
+    if not modules:
+        raise at.error("no modules: give [[modules]], 'initial' or 'initial_matrix'")
+    seen_cells: dict[Cell, int] = {}
+    seen_ids: set[int] = set()
+    for m, key in zip(modules, placed):
+        if m.cell in seen_cells:
+            raise at.error(f"modules {seen_cells[m.cell]} and {m.id} share cell {m.cell}", key)
+        if m.id in seen_ids:
+            raise at.error(f"hardware id {m.id} is used twice", key[:2] + ("id",))
+        seen_cells[m.cell] = m.id
+        seen_ids.add(m.id)
+    apart = _connected([m.cell for m in modules])
+    if apart:
+        raise at.error("the fleet is not one connected structure: "
+                       f"{', '.join(str(list(c)) for c in apart[:6])}"
+                       f"{' ...' if len(apart) > 6 else ''} touch no module of the rest "
+                       "(it could not be localized from the fixed module, nor move)")
+    return modules
+
+
+def _goal(d: dict[str, Any], modules: list[ModuleSpec], at: _Where) -> list[Cell]:
+    """``goal`` or ``goal_matrix`` (by default, where the modules are): one distinct cell
+    per module, one connected structure."""
+    if "goal" in d and "goal_matrix" in d:
+        raise at.error("give either 'goal' or 'goal_matrix', not both", ("goal_matrix",))
+    if "goal" in d:
+        goal = _cells(d["goal"], "goal", at)
+    elif "goal_matrix" in d:
+        goal = _matrix(d["goal_matrix"], "goal_matrix", at)
+    else:
+        goal = [m.cell for m in modules]
+    if len(set(goal)) != len(goal):
+        raise at.expected(("goal",), "distinct cells", [list(c) for c in goal])
+    if len(goal) != len(modules):
+        raise at.error(f"key 'goal': {len(goal)} goal cells for {len(modules)} modules; "
+                       "every module needs a goal cell", ("goal",))
+    apart = _connected(goal)
+    if apart:
+        raise at.error("the goal is not one connected structure: "
+                       f"{', '.join(str(list(c)) for c in apart[:6])} touch none of the rest",
+                       ("goal",))
+    return goal
+
+
+def _fixed(d: dict[str, Any], modules: list[ModuleSpec], goal: list[Cell], at: _Where) -> Cell:
+    """``fixed``, or by the thesis convention the cell common to the fleet and the goal
+    with the lowest y, then the lowest x: a module's cell that is also in the goal."""
+    cells = {m.cell for m in modules}
+    if "fixed" in d:
+        fixed = _cell(d["fixed"], ("fixed",), at)
+    else:
+        common = sorted(set(goal) & cells, key=lambda c: (c.y, c.x))
+        if not common:
+            raise at.error("key 'fixed' is missing and no cell is in both the fleet and the "
+                           "goal to choose it from")
+        fixed = common[0]
+    if fixed not in cells:
+        raise at.expected(("fixed",), "the cell of one of the modules", list(fixed))
+    if fixed not in goal:
+        raise at.expected(("fixed",), "a cell that is also in the goal (the fixed module "
+                          "never moves)", list(fixed))
+    return fixed
+
+
+def _obstacles(d: dict[str, Any], modules: list[ModuleSpec], goal: list[Cell],
+               at: _Where) -> list[Cell]:
+    obstacles = _cells(d.get("obstacles", []), "obstacles", at)
+    clash = (set(obstacles) & {m.cell for m in modules}) | (set(obstacles) & set(goal))
+    if clash:
+        raise at.expected(("obstacles",), "cells free of modules and goals",
+                          [list(c) for c in clash])
+    return obstacles
+
+
+def _faults(d: dict[str, Any], modules: list[ModuleSpec], at: _Where) -> list[ActuatorFault]:
+    ids = {m.id for m in modules}
+    faults = []
+    for i, spec in enumerate(d.get("faults", [])):
+        try:
+            f = ActuatorFault.parse(spec)
+        except FaultSpecError as exc:
+            raise at.error(f"key 'faults[{i}]': {exc}", ("faults", i)) from None
+        if int(f.module[1:]) not in ids:
+            raise at.expected(("faults", i), "a fault on a module of this scenario", spec)
+        faults.append(f)
+    return faults
+
+
+def _firmware_baud(program: str, ir_baud: int, modules: list[ModuleSpec], at: _Where) -> None:
+    if ir_baud != 300 and (program == "firmware" or any(m.program == "firmware" for m in modules)):
+        raise at.expected(("ir_baud",), "300 with program 'firmware' (the C programs are "
+                          "built for 300 baud IR)", ir_baud)
 
 
 def _connected(cells: list[Cell]) -> list[Cell] | None:
@@ -154,163 +445,6 @@ def _connected(cells: list[Cell]) -> list[Cell] | None:
                 seen.add(n)
                 todo.append(n)
     return None if len(seen) == len(have) else sorted(have - seen, key=lambda c: (c.y, c.x))
-
-
-def _cells(v: Any, key: str, source: str, text: str) -> list[Cell]:
-    if not isinstance(v, list):
-        raise _err(source, text, key, "a list of cells [[x, y], ...]", v)
-    return [_cell(c, f"{key}[{i}]", source, text) for i, c in enumerate(v)]
-
-
-def _matrix(v: Any, key: str, source: str, text: str) -> list[Cell]:
-    if not isinstance(v, list) or not v:
-        raise _err(source, text, key, "a thesis 0/1 matrix: a list of row strings like \"1 0 1\"", v)
-    try:
-        return matrix_to_cells(v)
-    except (ValueError, TypeError) as exc:
-        raise _err(source, text, key, f"a thesis 0/1 matrix ({exc})", v) from None
-
-
-def _unknown(keys: set[str], allowed: set[str], where: str, source: str, text: str) -> None:
-    for k in sorted(keys - allowed):
-        close = difflib.get_close_matches(k, sorted(allowed), n=1)
-        hint = f" (did you mean '{close[0]}'?)" if close else ""
-        raise ScenarioError(f"{source}: {_line_of(text, k)}unknown key '{where}{k}'{hint}; "
-                            f"expected one of: {', '.join(sorted(allowed))}")
-
-
-def _build(d: dict[str, Any], source: str, text: str) -> Scenario:
-    _unknown(set(d), _TOP_KEYS, "", source, text)
-    name = d.get("name", Path(source).stem if not source.startswith("<") else "scenario")
-    if not isinstance(name, str):
-        raise _err(source, text, "name", "a string", name)
-    profile = d.get("profile", "v2")
-    if profile not in PROFILES:
-        raise _err(source, text, "profile", " or ".join(repr(p) for p in PROFILES), profile)
-    seed = d.get("seed", 0)
-    if not isinstance(seed, int) or isinstance(seed, bool):
-        raise _err(source, text, "seed", "an integer", seed)
-
-    modules: list[ModuleSpec] = []
-    if "modules" in d:
-        if not isinstance(d["modules"], list):
-            raise _err(source, text, "modules", "an array of tables [[modules]]", d["modules"])
-        for i, m in enumerate(d["modules"]):
-            key = f"modules[{i}]"
-            if not isinstance(m, dict):
-                raise _err(source, text, key, "a table with cell, id, kind", m)
-            _unknown(set(m), _MODULE_KEYS, key + ".", source, text)
-            if "cell" not in m:
-                raise ScenarioError(f"{source}: key '{key}.cell' is missing: every module needs a cell")
-            cell = _cell(m["cell"], f"{key}.cell", source, text)
-            ident = m.get("id", i + 1)
-            if not isinstance(ident, int) or isinstance(ident, bool) or not 1 <= ident <= 255:
-                raise _err(source, text, f"{key}.id", "a hardware id 1..255 (the DIP switches)", ident)
-            kind = m.get("kind", "virtual")
-            if kind not in KINDS:
-                raise _err(source, text, f"{key}.kind", "'virtual', 'real' or 'firmware'", kind)
-            orient = m.get("orientation", 0)
-            if not isinstance(orient, int) or isinstance(orient, bool) or not 0 <= orient <= 5:
-                raise _err(source, text, f"{key}.orientation", "an integer 0..5 (60-degree steps)", orient)
-            for pk in ("port", "debug_port"):
-                if pk in m and not isinstance(m[pk], str):
-                    raise _err(source, text, f"{key}.{pk}", "a serial URL string", m[pk])
-            prog = m.get("program")
-            if prog is not None and prog not in PROGRAMS:
-                raise _err(source, text, f"{key}.program", "'model' or 'firmware'", prog)
-            modules.append(ModuleSpec(ident, cell, kind, orient, m.get("port"), m.get("debug_port"),
-                                      prog))
-    for key, parse in (("initial", _cells), ("initial_matrix", _matrix)):
-        if key in d:
-            if modules:
-                raise ScenarioError(f"{source}: {_line_of(text, key)}key '{key}': give the fleet "
-                                    "either as [[modules]] or as initial cells, not both")
-            start = len(modules) + 1
-            modules.extend(ModuleSpec(start + k, c) for k, c in enumerate(parse(d[key], key, source, text)))
-    if not modules:
-        raise ScenarioError(f"{source}: no modules: give [[modules]], 'initial' or 'initial_matrix'")
-    seen_cells: dict[Cell, int] = {}
-    seen_ids: set[int] = set()
-    for m in modules:
-        if m.cell in seen_cells:
-            raise ScenarioError(f"{source}: modules {seen_cells[m.cell]} and {m.id} share cell {m.cell}")
-        if m.id in seen_ids:
-            raise ScenarioError(f"{source}: hardware id {m.id} is used twice")
-        seen_cells[m.cell] = m.id
-        seen_ids.add(m.id)
-
-    apart = _connected([m.cell for m in modules])
-    if apart:
-        raise ScenarioError(f"{source}: the fleet is not one connected structure: "
-                            f"{', '.join(str(list(c)) for c in apart[:6])}"
-                            f"{' ...' if len(apart) > 6 else ''} touch no module of the rest "
-                            "(it could not be localized from the fixed module, nor move)")
-
-    if "goal" in d and "goal_matrix" in d:
-        raise ScenarioError(f"{source}: give either 'goal' or 'goal_matrix', not both")
-    if "goal" in d:
-        goal = _cells(d["goal"], "goal", source, text)
-    elif "goal_matrix" in d:
-        goal = _matrix(d["goal_matrix"], "goal_matrix", source, text)
-    else:
-        goal = [m.cell for m in modules]
-    if len(set(goal)) != len(goal):
-        raise _err(source, text, "goal", "distinct cells", [list(c) for c in goal])
-    if len(goal) != len(modules):
-        raise ScenarioError(f"{source}: {_line_of(text, 'goal')}key 'goal': {len(goal)} goal cells "
-                            f"for {len(modules)} modules; every module needs a goal cell")
-
-    if "fixed" in d:
-        fixed = _cell(d["fixed"], "fixed", source, text)
-    else:
-        # The thesis convention: the cell common to I and G with the lowest y, then lowest x.
-        common = sorted(set(goal) & set(seen_cells), key=lambda c: (c.y, c.x))
-        if not common:
-            raise ScenarioError(f"{source}: key 'fixed' is missing and no cell is in both the "
-                                "fleet and the goal to choose it from")
-        fixed = common[0]
-    apart = _connected(goal)
-    if apart:
-        raise ScenarioError(f"{source}: {_line_of(text, 'goal')}the goal is not one connected "
-                            f"structure: {', '.join(str(list(c)) for c in apart[:6])} touch none of "
-                            "the rest")
-    if fixed not in seen_cells:
-        raise _err(source, text, "fixed", "the cell of one of the modules", list(fixed))
-    if fixed not in goal:
-        raise _err(source, text, "fixed", "a cell that is also in the goal (the fixed module never moves)",
-                   list(fixed))
-    obstacles = _cells(d.get("obstacles", []), "obstacles", source, text)
-    clash = (set(obstacles) & set(seen_cells)) | (set(obstacles) & set(goal))
-    if clash:
-        raise _err(source, text, "obstacles", "cells free of modules and goals", [list(c) for c in clash])
-    program = d.get("program", "model")
-    if program not in PROGRAMS:
-        raise _err(source, text, "program", "'model' or 'firmware'", program)
-    ir_baud = d.get("ir_baud", 300)
-    if not isinstance(ir_baud, int) or ir_baud <= 0:
-        raise _err(source, text, "ir_baud", "a positive baud rate", ir_baud)
-    ber = d.get("bit_error_rate", 0.0)
-    if not isinstance(ber, (int, float)) or not 0 <= ber < 1:
-        raise _err(source, text, "bit_error_rate", "a probability 0 <= p < 1", ber)
-    faults = []
-    raw_faults = d.get("faults", [])
-    if not isinstance(raw_faults, list):
-        raise _err(source, text, "faults", "an array of fault strings such as \"m3.S2-:off\"", raw_faults)
-    for i, spec in enumerate(raw_faults):
-        try:
-            f = ActuatorFault.parse(str(spec))
-        except FaultSpecError as exc:
-            raise ScenarioError(f"{source}: {_line_of(text, 'faults')}key 'faults[{i}]': {exc}") from None
-        if int(f.module[1:]) not in seen_ids:
-            raise _err(source, text, f"faults[{i}]", "a fault on a module of this scenario", spec)
-        faults.append(f)
-    if ir_baud != 300 and (program == "firmware" or any(m.program == "firmware" for m in modules)):
-        raise _err(source, text, "ir_baud", "300 with program 'firmware' (the C programs are built "
-                   "for 300 baud IR)", ir_baud)
-    return Scenario(name=name, modules=modules, fixed=fixed, goal=goal, obstacles=obstacles,
-                    profile=profile, seed=seed, description=str(d.get("description", "")),
-                    source=source, ir_baud=ir_baud, bit_error_rate=float(ber), faults=faults,
-                    program=program)
 
 
 def parse_real(spec: str) -> tuple[int, str, str | None]:

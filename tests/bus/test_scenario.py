@@ -66,6 +66,32 @@ def test_error_names_the_line(tmp_path):
         load(p)
 
 
+@pytest.mark.parametrize("text, message", [
+    # a key of the second [[modules]] table: its own line, not the first 'kind ='
+    ('name = "two"\n[[modules]]\ncell = [0, 0]\nkind = "real"\n\n[[modules]]\ncell = [1, 0]\n'
+     'kind = "robot"\n', "line 8, key 'modules[1].kind': expected 'virtual', 'real' or "
+     "'firmware', got 'robot'"),
+    ('[[modules]]\ncell = [0, 0]\n[[modules]]\nid = 4\n',
+     "line 3, key 'modules[1].cell' is missing: expected a cell [x, y] of two integers"),
+    ('[[modules]]\ncell = [0, 0]\nid = 2\n[[modules]]\ncell = [1, 0]\nid = 2\n',
+     "line 6, hardware id 2 is used twice"),
+    ('[[modules]]\ncell = [0, 0]\n[[modules]]\ncell = [0, 0]\n',
+     "line 4, modules 1 and 2 share cell (0,0)"),
+    # a multi-line string holds no keys
+    ('description = """\ngoal = 3\n"""\ninitial = [[0, 0], [1, 0]]\n'
+     'goal = [[0, 0], [1, 0], [2, 0]]', "line 5, key 'goal': 3 goal cells for 2 modules; every "
+     "module needs a goal cell"),
+    ('seed = 1.0\ninitial = [[0, 0]]', "line 1, key 'seed': expected an integer, got 1.0"),
+    ('initial = [[0, 0]]\n[[modules]]\ncell = [1, 0]\nspeed = 3\n',
+     "line 4, unknown key 'modules[0].speed'; expected one of: cell, debug_port, id, kind, "
+     "orientation, port, program"),
+])
+def test_errors_name_the_line_of_the_key(text, message):
+    with pytest.raises(ScenarioError) as exc:
+        loads(text, source="bad.toml")
+    assert str(exc.value) == f"bad.toml: {message}"
+
+
 def test_unknown_builtin_suggests():
     with pytest.raises(ScenarioError, match="did you mean 'thesis-6'"):
         load("thesis-7")
