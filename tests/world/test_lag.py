@@ -1,6 +1,10 @@
 """A wall-clock fleet watches its own lag (module_sim.fleet.LagWatch): a clock thread held up
-on purpose (a handler that sleeps 100 ms: the thing under test) gives a ``lag`` event, one
-console line and a failure line that names it; a run that keeps up gives none."""
+on purpose (a handler that sleeps 300 ms: the thing under test) gives a ``lag`` event, one
+console line and a failure line that names it; a run that keeps up gives none.
+
+The tests run beside others on a loaded machine (xdist on two cores), where a clock thread is
+sometimes late by tens of milliseconds for real: they raise the threshold to 120 ms so that
+only the deliberate block counts as lag."""
 
 from __future__ import annotations
 
@@ -16,9 +20,16 @@ from bus.session import SessionOptions
 from bus.transport import Bus
 from hexbench.cli import main
 from hexbench.fleet import LagNotice
-from module_sim.fleet import LAG_THRESHOLD_NS, Fleet
+import module_sim.fleet
+from module_sim.fleet import Fleet
 
-BLOCK_S = 0.1  # what the blocking handler sleeps: ten ticks
+BLOCK_S = 0.3  # what the blocking handler sleeps: thirty ticks
+LAG_THRESHOLD_NS = 120_000_000  # in these tests (module_sim.fleet's is 20 ms)
+
+
+@pytest.fixture(autouse=True)
+def threshold(monkeypatch):
+    monkeypatch.setattr(module_sim.fleet, "LAG_THRESHOLD_NS", LAG_THRESHOLD_NS)
 
 
 @pytest.fixture(autouse=True)
@@ -52,19 +63,19 @@ def _wall_fleet(name: str, *, block_at_s: list[float], seconds: float = 1.0) -> 
 
 
 def test_a_blocked_clock_thread_gives_one_lag_event_and_one_line():
-    events, lines = _wall_fleet("lagblocked", block_at_s=[0.3, 0.35])
+    events, lines = _wall_fleet("lagblocked", block_at_s=[0.3, 0.35], seconds=1.5)
     (e,) = events  # both blocks in one span: one event with the span's worst
     assert e["kind"] == "lag" and e["src"] == "fleet" and e["threshold_ns"] == LAG_THRESHOLD_NS
-    assert 0.9 * BLOCK_S * 1e9 <= e["late_ns"] == max(e["timer_late_ns"], e["delivery_late_ns"]) < 0.5e9
+    assert 0.9 * BLOCK_S * 1e9 <= e["late_ns"] == max(e["timer_late_ns"], e["delivery_late_ns"]) < 1.0e9
     (line,) = lines
     ms = re.fullmatch(r"lag: the fleet ran (\d+) ms behind the wall clock \(timers up to \d+ ms late, "
-                      r"deliveries \d+ ms; more than 20 ms is lag\): the machine is overloaded, and a "
+                      r"deliveries \d+ ms; more than 120 ms is lag\): the machine is overloaded, and a "
                       r"timeout from now on may be this rather than a protocol fault", line)
     assert ms and int(ms.group(1)) == round(e["late_ns"] / 1e6), line
 
 
 def test_the_console_says_it_once_in_a_while():
-    events, lines = _wall_fleet("lagtwice", block_at_s=[0.2, 1.3], seconds=2.0)
+    events, lines = _wall_fleet("lagtwice", block_at_s=[0.2, 1.5], seconds=2.5)
     assert len(events) == 2  # a second span, a second event ...
     assert len(lines) == 1  # ... but the console said it once
 
@@ -126,4 +137,10 @@ def test_a_run_that_fails_after_lag_names_it(tmp_path, capsys, monkeypatch, quic
 def test_a_run_that_fails_without_lag_names_none(tmp_path, capsys, quick_boot):
     code, out = _failing_run(tmp_path, capsys)
     assert code == 1
-    assert "lag" not in out and "behind the wall clock" not in out, out
+    failed = out.strip().splitlines()[-1]
+    assert "FAILED" in failed
+    # the failure line names lag exactly when the console said the fleet lagged (which, with
+    # nothing held up on purpose, a machine this loaded should not make it do)
+    said_lag = re.search(r"^lag: the fleet ran", out, re.M) is not None
+    assert ("behind the wall clock" in failed) == said_lag, out
+    assert not said_lag, out
