@@ -28,6 +28,9 @@ from .errors import HexbenchError
 #: ``make -C firmware`` builds there: the images, the simavr harness, the host libraries.
 FIRMWARE_DIR = Path(os.environ.get("HEXBENCH_FIRMWARE", Path(__file__).resolve().parents[1] / "firmware"))
 BUILD_DIR = FIRMWARE_DIR / "build"
+#: Where a non-editable install keeps the host libraries it built (setup.py), for an
+#: installed hexbench with no checkout beside it.
+PACKAGED_DIR = Path(__file__).resolve().parent / "_firmware"
 #: Profile name (module_sim.profiles) -> the tag of its builds.
 PROFILE_TAG = {"v2": "v2", "thesis-2009": "thesis"}
 _build_lock = threading.Lock()
@@ -45,7 +48,12 @@ def build_path(kind: str, board: str, profile: str) -> Path:
     except KeyError:
         raise FirmwareError(f"no firmware for profile {profile!r}: expected "
                             f"{' or '.join(PROFILE_TAG)}") from None
-    return BUILD_DIR / (f"{board}-{tag}.elf" if kind == "elf" else f"libhexbot-{board}-{tag}.so")
+    if kind == "elf":
+        return BUILD_DIR / f"{board}-{tag}.elf"
+    lib = f"libhexbot-{board}-{tag}.so"
+    if not (BUILD_DIR / lib).exists() and (PACKAGED_DIR / lib).exists():
+        return PACKAGED_DIR / lib
+    return BUILD_DIR / lib
 
 
 def ensure_built() -> None:
@@ -55,6 +63,11 @@ def ensure_built() -> None:
                                                   for b in ("comm", "control") for p in PROFILE_TAG]
         if all(p.exists() for p in wanted):
             return
+        if not FIRMWARE_DIR.is_dir():
+            raise FirmwareError(f"no firmware sources at {FIRMWARE_DIR}: this hexbench was installed "
+                                "without its firmware's host libraries (they are built at install time "
+                                "with a C compiler: install build-essential, then hexbench again), or "
+                                "set HEXBENCH_FIRMWARE to a checkout's firmware/ directory")
         if shutil.which("avr-gcc") is None:
             raise FirmwareError("the firmware is not built and avr-gcc is not installed: install "
                                 "gcc-avr avr-libc simavr libsimavr-dev (.ci/system, or make test)")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import pytest
 
+from golden import GOLDEN_THESIS_12_FRAMES, frames_digest
 from recordings.reader import iter_samples, read_frames, read_metadata, sim_origin
 
 
@@ -42,30 +43,6 @@ def test_another_seed_gives_another_run(tmp_path, pair_recording, record_pair_ru
 GOLDEN_THESIS_12 = (11904, 2122, "b2830bbf6f48c0b22935b1d942320cc45dc7adc77bb6181bcbc563cf00a6be53")
 
 
-#: The same run's frames alone, in sim-time order (ties by topic and seq): what a fleet core that
-#: no longer publishes light between modules as samples, or writes a window's samples in another
-#: file order, must still give. The digest above changes with either; this one only with the
-#: frames themselves.
-GOLDEN_THESIS_12_FRAMES = (2122, "a9af899fc0a04768ca0782cb74986fd5b38992c2c9e6de59cc577101c036fb97")
-
-
-def _frames_digest(path) -> tuple[int, str]:
-    import hashlib
-    import json
-
-    from mcap.reader import make_reader
-
-    rows = []
-    with open(path, "rb") as f:
-        for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
-            if channel.message_encoding == "json" and channel.topic.startswith("frame/"):
-                d = json.loads(message.data)
-                rows.append((d["sim_time_ns"], channel.topic, d["seq"], d["link"], d["src"], d["dst"],
-                             d.get("channel"), d["kind"], d.get("first_byte_ns"), d["raw"]))
-    rows.sort()
-    return len(rows), hashlib.sha256(repr(rows).encode()).hexdigest()
-
-
 def _digest(path) -> tuple[int, int, str]:
     import hashlib
     import json
@@ -99,4 +76,4 @@ def test_thesis_12_gives_the_golden_frames(tmp_path, capsys, program):
                  "--program", program, "--record", str(out)]) == 0
     capsys.readouterr()
     assert _digest(out) == GOLDEN_THESIS_12
-    assert _frames_digest(out) == GOLDEN_THESIS_12_FRAMES
+    assert frames_digest(out) == GOLDEN_THESIS_12_FRAMES
