@@ -118,11 +118,7 @@ def _pin_table(name: str, table: dict[int, pins.Pin]) -> list[str]:
 
 
 def _port_masks(name: str, pin_list: list[pins.Pin]) -> list[str]:
-    out = []
-    for port in pins.PORTS:
-        mask = sum(p.mask for p in pin_list if p.port == port)
-        out.append(f"#define {name}_{port} 0x{mask:02x}")
-    return out
+    return [f"#define {name}_{port} 0x{mask:02x}" for port, mask in pins.port_masks(pin_list).items()]
 
 
 def _rotation(name: str, steps: tuple) -> str:

@@ -87,6 +87,13 @@ class Switches(Record):
         return [bool(v) for v in p]
 
 
+#: Event kinds a serial bridge (hil.bridge) publishes on ``event/hil.<port>``, and the planner
+#: (planner_svc.executor) waits on: one spelling for both floors.
+SERIAL_FAULT = "serial-fault"
+SERIAL_RECOVERED = "serial-recovered"
+SERIAL_TX_LOST = "serial-tx-lost"
+
+
 @dataclass
 class WorldEvent(Record):
     """``world/event``: move started/completed/refused, faults, collisions. Errors are data."""

@@ -67,6 +67,7 @@ IR_SEL_MASK = IR_SEL_A.mask | IR_SEL_B.mask | IR_SEL_C.mask
 OPTICAL_SWITCH = _pins("PB0", "PB1", "PB4", "PA3", "PA4", "PD2")
 OPTICAL_SWITCH_ACTIVE_LOW = True
 
+
 def dip_levels(ident: int) -> int:
     """PINC as the control board reads it when its DIP switches are set to ``ident``."""
     return (~ident if DIP_ACTIVE_LOW else ident) & 0xFF
@@ -99,6 +100,7 @@ def port_masks(pin_list: tuple[Pin, ...] | list[Pin]) -> dict[str, int]:
     for p in pin_list:
         masks[p.port] |= p.mask
     return masks
+
 
 #: Transceiver number (0 = centre, 1..6 = body side) on each CD4051 channel Y0..Y6.
 IR_CHANNEL_TRANSCEIVER = (1, 6, 0, 2, 5, 3, 4)

@@ -29,6 +29,10 @@ from bus.codec import Kind, Link
 from bus.framer import Framer, Timed
 from bus.ir import Burst
 from bus.keys import PC, board_endpoint, module_endpoint
+# the event kinds a bridge publishes on ``event/hil.<port>``
+from bus.messages import SERIAL_FAULT as FAULT
+from bus.messages import SERIAL_RECOVERED as RECOVERED
+from bus.messages import SERIAL_TX_LOST as TX_LOST
 from bus.messages import Actuators
 from bus.timing import BITS_PER_BYTE, Baud
 from bus.transport import Bus
@@ -38,10 +42,6 @@ from .port import Backoff, LivePort, open_port, port_name
 
 ORIGIN = "serial"
 
-#: Event kinds a bridge publishes on ``event/hil.<port>``.
-FAULT = "serial-fault"
-RECOVERED = "serial-recovered"
-TX_LOST = "serial-tx-lost"
 
 
 class SerialBridge:

@@ -26,17 +26,13 @@ for _p in JOINT.values():
     _ALL_JOINTS[_p.port] |= _p.mask
 
 
-#: The port bits an actuator report covers: solenoids and magnet relays (Table 3-3).
-_ACTUATOR_MASK: dict[str, int] = {}
-for _p in (*JOINT.values(), *MAGNET_POS.values(), *MAGNET_NEG.values()):
-    _ACTUATOR_MASK[_p.port] = _ACTUATOR_MASK.get(_p.port, 0) | _p.mask
-
-
 #: The on-time limit of each group of coils: solenoids, magnets positive, negative.
 _LIMIT = (SOLENOID_ON_LIMIT_TICKS, MAGNET_ON_LIMIT_TICKS, MAGNET_ON_LIMIT_TICKS)
 #: Every coil as (group, side): group 0 solenoids, 1 magnets positive, 2 negative (as in ACT).
 _COILS: tuple[tuple[int, int, Pin], ...] = tuple(
     (g, s, table[s]) for g, table in enumerate((JOINT, MAGNET_POS, MAGNET_NEG)) for s in range(1, 7))
+#: The port bits an actuator report covers: solenoids and magnet relays (Table 3-3).
+_ACTUATOR_MASK = port_masks([pin for _, _, pin in _COILS])
 
 
 def _keep_mask(port: str) -> int:

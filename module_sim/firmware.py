@@ -35,6 +35,8 @@ _EV_PORT, _EV_TX = 1, 2
 _EVENT = struct.Struct("<BBBBHH")  # hexbot_event_t
 _MAX_EVENTS, _MAX_BYTES = 256, 1024
 _FLUSH = ctypes.CFUNCTYPE(None)  # hexbot_flush_fn
+#: The optical switches' bits of each port (the levels of the other input pins stay as set).
+_SWITCH_BITS = port_masks(list(OPTICAL_SWITCH.values()))
 
 
 class _Event(ctypes.Structure):
@@ -143,9 +145,9 @@ class FirmwareDriver:
         for k, letter in enumerate(PORTS):
             pins[k] = pin_in[letter]
         if self.switches is not None:
-            wired, levels = port_masks(tuple(OPTICAL_SWITCH.values())), switch_levels(self.switches())
+            levels = switch_levels(self.switches())
             for k, letter in enumerate(PORTS):
-                pins[k] = pins[k] & ~wired[letter] | levels.get(letter, 0)
+                pins[k] = pins[k] & ~_SWITCH_BITS[letter] | levels.get(letter, 0)
         self.program.set_pins(self._state, pins)
 
     def step(self) -> None:

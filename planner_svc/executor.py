@@ -36,7 +36,7 @@ from bus.codec import encode_command
 from bus.errors import HexbenchError
 from bus.functions import FunctionCode as F
 from bus.lattice import Cell, Direction, Joint, Side
-from bus.messages import Pose, WorldEvent
+from bus.messages import SERIAL_FAULT, SERIAL_RECOVERED, SERIAL_TX_LOST, Pose, WorldEvent
 from bus.rotations import orientation_after, rotation_arguments
 from bus.timing import NS_PER_S
 from bus.transport import Bus
@@ -55,9 +55,9 @@ ACK_TIMEOUT_S = 5.0
 #: USB adapter enumerates again within a few seconds, and the bridge retries at least every
 #: 2 s (hil.port.Backoff).
 REPLUG_WAIT_S = 10.0
-#: The events a serial bridge publishes on ``event/hil.<port>`` (hil.bridge FAULT,
-#: RECOVERED, TX_LOST; docs/hil.md), as the planner sees them on the bus.
-PORT_FAULT, PORT_RECOVERED, PORT_TX_LOST = "serial-fault", "serial-recovered", "serial-tx-lost"
+#: The events a serial bridge publishes on ``event/hil.<port>`` (docs/hil.md), as the planner
+#: sees them on the bus.
+PORT_FAULT, PORT_RECOVERED, PORT_TX_LOST = SERIAL_FAULT, SERIAL_RECOVERED, SERIAL_TX_LOST
 
 
 class MoveFailed(HexbenchError, RuntimeError):
