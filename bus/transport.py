@@ -12,6 +12,11 @@ How a sample travels:
   subscribers only; samples from elsewhere arrive through one wildcard subscriber
   (``hexbot/**``, remote origin only) and reach the same handlers through the inbox.
   Threads do not grow with the fleet.
+* **In batches**, ``put_batch`` does what ``put`` does for each of its samples, in order, at a
+  fraction of the cost: a handler registered with ``subscribe_batch`` gets all the samples of
+  a batch that match it in one call, through one inbox post; other processes get the batch as
+  one zenoh sample on ``hexbot/@batch/<fleet>`` (:func:`pack_batch`), which their hub unpacks
+  so that every handler there sees each sample under its own key, in order.
 """
 
 from __future__ import annotations
@@ -19,8 +24,9 @@ from __future__ import annotations
 import atexit
 import itertools
 import json
+import struct
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import zenoh
 
@@ -32,10 +38,51 @@ from .keys import ROOT, Keys, check_chunk
 from .session import SessionOptions, open_session
 
 Handler = Callable[[str, bytes], None]
+#: A batch handler's argument: ``(key, payload)`` of every sample of a batch that matched it, in order.
+Samples = Sequence[tuple[str, bytes]]
+BatchHandler = Callable[[list[tuple[str, bytes]]], None]
 
 #: The key of the flush barrier (a verbatim ``@`` chunk: no ``hexbot/**`` matches it), and how
 #: long a closing session waits for the answers of the processes that subscribe to it.
 FLUSH_KEY, FLUSH_TIMEOUT_S = f"{ROOT}/@flush", 30.0
+#: Where a batch travels between processes: ``hexbot/@batch/<fleet>`` (verbatim too, so the
+#: samples it carries are never seen twice by a ``hexbot/**`` subscriber).
+BATCH_PREFIX = f"{ROOT}/@batch"
+_BATCH_ITEM = struct.Struct("<HI")  # key length, payload length (then the key, then the payload)
+
+
+def pack_batch(items: Samples) -> bytes:
+    """A batch on the wire: per sample, its key's UTF-8 length (u16, little-endian), its
+    payload's length (u32), the key, the payload; nothing else (docs/bus.md)."""
+    parts: list[bytes] = []
+    add = parts.extend
+    pack = _BATCH_ITEM.pack
+    try:
+        for key, payload in items:
+            k = key.encode()
+            add((pack(len(k), len(payload)), k, payload))
+    except struct.error:
+        raise ValueError("a batch key must be shorter than 64 KiB and a payload than 4 GiB") from None
+    return b"".join(parts)
+
+
+def unpack_batch(data: bytes) -> list[tuple[str, bytes]]:
+    """The samples of :func:`pack_batch`'s bytes; ``ValueError`` if they are not such bytes."""
+    out: list[tuple[str, bytes]] = []
+    add = out.append
+    unpack = _BATCH_ITEM.unpack_from
+    off, end = 0, len(data)
+    mv = memoryview(data)
+    while off < end:
+        if end - off < 6:
+            raise ValueError(f"batch cut short: {end - off} bytes where a sample header (6) belongs")
+        klen, plen = unpack(data, off)
+        start = off + 6
+        off = start + klen + plen
+        if off > end or not klen:
+            raise ValueError(f"batch sample at byte {start - 6} runs past the end ({off} > {end}) or has no key")
+        add((str(mv[start:start + klen], "utf-8"), data[start + klen:off]))
+    return out
 
 
 @dataclass(eq=False)
@@ -48,6 +95,7 @@ class Subscription:
     index: int  # subscription order in the hub: ties of one sample are handled in it
     hub: "_Hub"
     who: str  # the participant, for its bad-sample events
+    batch: bool = False  # handler(list of (key, payload)), see Bus.subscribe_batch
     active: bool = True
 
     @property
@@ -91,6 +139,9 @@ class _Hub:
         if scope not in self.remote:
             self.remote[scope] = self.session.declare_subscriber(
                 scope, self._from_elsewhere, allowed_origin=zenoh.Locality.REMOTE)
+        if BATCH_PREFIX not in self.remote:  # batches of every fleet: unpacked, then matched here
+            self.remote[BATCH_PREFIX] = self.session.declare_subscriber(
+                f"{BATCH_PREFIX}/*", self._batch_from_elsewhere, allowed_origin=zenoh.Locality.REMOTE)
         if self.flush_answer is None:
             # a flush query arrives behind every sample its sender put before it: answering it
             # says they are all in this process (on their clocks' inboxes)
@@ -125,7 +176,73 @@ class _Hub:
                 fn(sender, key, data)
                 return
         for sub in self.matches(key):
-            sub.clock.post_foreign(sender, _deliver_foreign, sub, key, data)
+            if sub.batch:
+                sub.clock.post_foreign(sender, _deliver_foreign_batch, sub, [(key, data)])
+            else:
+                sub.clock.post_foreign(sender, _deliver_foreign, sub, key, data)
+
+    def _batch_from_elsewhere(self, sample: zenoh.Sample) -> None:
+        """A zenoh thread: a batch another process put (:meth:`Bus.put_batch`). Each of its
+        samples reaches this process's handlers as if it had come alone, in order (control
+        prefixes included); a batch handler gets its samples of the batch in one call, after
+        the per-sample handlers of the batch (or before a control sample in it)."""
+        key = str(sample.key_expr)
+        data = sample.payload.to_bytes()
+        att = sample.attachment
+        sender = att.to_bytes().decode("utf-8", "replace") if att is not None else ""
+        try:
+            items = unpack_batch(data)
+        except ValueError as exc:
+            self._bad_batch(sender, key, data, exc)
+            return
+        groups: dict[Subscription, list[tuple[str, bytes]]] = {}
+        control = self.control
+        matches = self.matches
+        for k, payload in items:
+            if control and self._control(sender, k, payload, groups):
+                groups = {}
+                continue
+            try:
+                subs = matches(k)
+            except Exception as exc:  # not a key expression: the sender is wrong
+                self._bad_batch(sender, key, payload, exc, item=k)
+                continue
+            for sub in subs:
+                if sub.batch:
+                    group = groups.get(sub)
+                    if group is None:
+                        group = groups[sub] = []
+                    group.append((k, payload))
+                else:
+                    sub.clock.post_foreign(sender, _deliver_foreign, sub, k, payload)
+        self._post_groups(sender, groups)
+
+    def _control(self, sender: str, key: str, payload: bytes,
+                 groups: dict[Subscription, list[tuple[str, bytes]]]) -> bool:
+        """A control sample inside a batch goes to its function, after the samples before it
+        are on their clocks (``groups`` posted); False if ``key`` is not one."""
+        for prefix, fn in self.control:
+            if key.startswith(prefix):
+                self._post_groups(sender, groups)
+                fn(sender, key, payload)
+                return True
+        return False
+
+    @staticmethod
+    def _post_groups(sender: str, groups: dict[Subscription, list[tuple[str, bytes]]]) -> None:
+        for sub, group in groups.items():
+            sub.clock.post_foreign(sender, _deliver_foreign_batch, sub, group)
+
+    def _bad_batch(self, sender: str, key: str, data: bytes, exc: Exception, item: str | None = None) -> None:
+        """A batch (or a sample in one) that cannot be unpacked: a ``bad-sample`` event of
+        ``bus``, published on the clock of a bus of the batch's fleet (any bus if none)."""
+        fleet = key.rsplit("/", 1)[-1]
+        subs = [s for group in (*self.exact.values(), self.wild) for s in group if s.active]
+        if not subs:
+            return
+        sub = next((s for s in subs if s.bus.keys.fleet == fleet), subs[0])
+        reason = f"{type(exc).__name__}: {exc}"[:300]
+        sub.clock.post_foreign(sender, _bad_sample, sub.bus, "bus", item or key, reason, data)
 
     def flush(self, timeout_s: float = FLUSH_TIMEOUT_S) -> None:
         """Return once every process subscribed here holds what this session put: a query
@@ -155,6 +272,29 @@ def _deliver(sub: Subscription, key: str, data: bytes) -> None:
         sub.handler(key, data)
 
 
+def _deliver_batch(sub: Subscription, items: list[tuple[str, bytes]]) -> None:
+    if sub.active:
+        sub.handler(items)
+
+
+def _bad_sample(bus: "Bus", who: str, key: str, reason: str, data: bytes) -> None:
+    if not bus.closed:
+        bus.event(who, "bad-sample", key=bus.keys.relative(key), reason=reason, bytes=data[:256].hex(),
+                  size=len(data))
+
+
+def _deliver_foreign_batch(sub: Subscription, items: list[tuple[str, bytes]]) -> None:
+    """Samples of a batch from another process, for a batch handler: one it cannot take is a
+    ``bad-sample`` event (for the first of them; ``items``: how many the call had)."""
+    if not sub.active:
+        return
+    try:
+        sub.handler(items)
+    except Exception as exc:
+        key, data = items[0]
+        _bad_sample(sub.bus, sub.who, key, f"{type(exc).__name__}: {exc} ({len(items)} samples)"[:300], data)
+
+
 def _deliver_foreign(sub: Subscription, key: str, data: bytes) -> None:
     """A sample from another process: one that its handler cannot take (not JSON, a field
     missing, a value out of range) is an ``event/<participant>`` ``bad-sample``, and the
@@ -165,11 +305,7 @@ def _deliver_foreign(sub: Subscription, key: str, data: bytes) -> None:
     try:
         sub.handler(key, data)
     except Exception as exc:  # errors are data: the sender is wrong, not this participant
-        bus = sub.bus
-        if not bus.closed:
-            bus.event(sub.who, "bad-sample", key=bus.keys.relative(key),
-                      reason=f"{type(exc).__name__}: {exc}"[:300], bytes=data[:256].hex(),
-                      size=len(data))
+        _bad_sample(sub.bus, sub.who, key, f"{type(exc).__name__}: {exc}"[:300], data)
 
 
 def participant(handler: Callable[..., Any]) -> str:
@@ -205,6 +341,7 @@ class Bus:
         self._subs: list[Subscription] = []
         self._publishers: dict[str, Any] = {}
         self._seq: dict[str, int] = {}
+        self._batch_key = f"{BATCH_PREFIX}/{self.keys.fleet}"
         self.published = 0
         self.closed = False
         atexit.register(self.close)
@@ -229,9 +366,48 @@ class Bus:
         hub = self._hub
         order = next(hub.order)
         for sub in hub.matches(key):
-            sub.clock.post(_deliver, sub, key, payload, order=(order, sub.index))
+            if sub.batch:
+                sub.clock.post(_deliver_batch, sub, [(key, payload)], order=(order, sub.index))
+            else:
+                sub.clock.post(_deliver, sub, key, payload, order=(order, sub.index))
         self.put_remote(key, payload)
         self.published += 1
+
+    def put_batch(self, items: Samples) -> None:
+        """Publish many samples at once: the effect of :meth:`put` for each, in order, for
+        less. Per-sample handlers here get each sample as from ``put``; a batch handler
+        (:meth:`subscribe_batch`) gets the ones that match it in one call, handled where its
+        first sample would have been. Other processes get the batch as one zenoh sample on
+        ``hexbot/@batch/<fleet>`` (:func:`pack_batch`), unpacked there sample by sample."""
+        if self.closed or not items:
+            return
+        hub = self._hub
+        order = hub.order
+        matches = hub.matches
+        groups: dict[Subscription, tuple[int, list[tuple[str, bytes]]]] = {}
+        for item in items:
+            subs = matches(item[0])
+            if not subs:
+                continue
+            n = next(order)
+            for sub in subs:
+                if sub.batch:
+                    group = groups.get(sub)
+                    if group is None:
+                        group = groups[sub] = (n, [])
+                    group[1].append(item)
+                else:
+                    sub.clock.post(_deliver, sub, item[0], item[1], order=(n, sub.index))
+        for sub, (n, group) in groups.items():  # whole: a wall clock's thread may take it at once
+            sub.clock.post(_deliver_batch, sub, group, order=(n, sub.index))
+        pub = self._publishers.get(self._batch_key) or self._publisher(self._batch_key)
+        if pub.matching_status.matching:
+            if hub.attachment is None:
+                pub.put(pack_batch(items))
+            else:
+                pub.put(pack_batch(items), attachment=hub.attachment)
+            hub.sent = True
+        self.published += len(items)
 
     def put_remote(self, key: str, payload: bytes) -> None:
         """Publish to other processes only (what :meth:`put` does after the local delivery;
@@ -297,6 +473,17 @@ class Bus:
         handler's owner, :func:`participant`)."""
         sub = Subscription(zenoh.KeyExpr(keyexpr), handler, self, next(self._hub.index),
                            self._hub, who or participant(handler))
+        self._hub.add(sub)
+        self._subs.append(sub)
+        return sub
+
+    def subscribe_batch(self, keyexpr: str, handler: BatchHandler, *, who: str | None = None) -> Subscription:
+        """``handler(samples)``, ``samples`` a list of ``(key, payload)`` in publish order: all
+        the samples of one :meth:`put_batch` (here or in another process) that match
+        ``keyexpr`` in one call, a sample put alone as a list of one. Same thread and
+        ``bad-sample`` rules as :meth:`subscribe`."""
+        sub = Subscription(zenoh.KeyExpr(keyexpr), handler, self, next(self._hub.index),
+                           self._hub, who or participant(handler), batch=True)
         self._hub.add(sub)
         self._subs.append(sub)
         return sub

@@ -234,14 +234,26 @@ class FrameLog:
         key = (payload[:cut], kind) if cut > 0 and b'"raw":' in payload[:cut] else None
         rest = self._seen.get(key) if key is not None else None
         if rest is None:
-            env = Envelope.from_json(payload)
-            rest = Log(level=LogLevel.Warning if env.kind == Kind.NOISE.value else LogLevel.Info,
-                       message=self.lines.line(env), name=f"{env.link}/{env.src}").encode()
-            if key is not None:
-                if len(self._seen) > 65536:  # a long run of ever-new frames: start over
-                    self._seen.clear()
-                self._seen[key] = rest
+            rest = self.rest(payload, key)
         return timestamp_field(t_ns) + rest
+
+    #: ``(the envelope's bytes before ``,"sim_time_ns"``, its kind)`` -> :meth:`rest` (read it, then
+    #: call :meth:`rest` on a miss: what the recorder's batch path does per frame).
+    @property
+    def seen(self) -> dict[tuple[bytes, str | None], bytes]:
+        return self._seen
+
+    def rest(self, payload: bytes, key: tuple[bytes, str | None] | None) -> bytes:
+        """The encoded Log of a frame without its timestamp, remembered under ``key``
+        (``ValueError``/``KeyError``/``TypeError`` if the payload is no envelope)."""
+        env = Envelope.from_json(payload)
+        rest = Log(level=LogLevel.Warning if env.kind == Kind.NOISE.value else LogLevel.Info,
+                   message=self.lines.line(env), name=f"{env.link}/{env.src}").encode()
+        if key is not None:
+            if len(self._seen) > 65536:  # a long run of ever-new frames: start over
+                self._seen.clear()
+            self._seen[key] = rest
+        return rest
 
 
 _KIND = re.compile(rb'"kind":"([a-z0-9_-]*)"')

@@ -15,20 +15,25 @@ from __future__ import annotations
 
 import struct
 import zlib
-from collections import defaultdict
-from typing import IO, Any
+from array import array
+from collections import Counter, defaultdict
+from typing import IO, Any, Iterable
 
 from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
-from mcap.records import (Channel, Chunk, ChunkIndex, DataEnd, Footer, Header, MessageIndex, Metadata,
+from mcap.records import (Channel, Chunk, DataEnd, Footer, Header, Metadata,
                           MetadataIndex, Schema, Statistics, SummaryOffset)
 
 from bus.errors import HexbenchError
+
+from . import native
 
 MAGIC = bytes([137, 77, 67, 65, 80, 48, 13, 10])
 #: opcode, record length, channel id, sequence, log time, publish time (then the data).
 _MESSAGE_HEADER = struct.Struct("<BQHIQQ")
 _MESSAGE_OVERHEAD = _MESSAGE_HEADER.size - 9  # record length counts the fields, not opcode+length
+#: opcode, record length, channel id, length of the records (then the log time, offset pairs).
+_INDEX_HEADER = struct.Struct("<BQHI")
 COMPRESSIONS = ("zstd", "lz4", "none")
 
 
@@ -55,6 +60,54 @@ def _compressor(name: str) -> Any:
     raise ValueError(f"unknown compression {name!r}: expected one of {', '.join(COMPRESSIONS)}")
 
 
+def _index_records(cids: array, times: array, offsets: array) -> tuple[bytes, list[tuple[int, int]]]:
+    """mcap's MessageIndex records of a chunk, one per channel in the order of its first
+    message, and ``(channel, offset of its record)``: packed at once (mcap's own packs field
+    by field), in C when :mod:`recordings.native` is there."""
+    made = native.index_records(cids, times, offsets)
+    if made is not None:
+        return made
+    flat: dict[int, list[int]] = {}
+    for cid, t, off in zip(cids, times, offsets):
+        pairs = flat.get(cid)
+        if pairs is None:
+            pairs = flat[cid] = []
+        pairs += (t, off)
+    parts, at, size = [], [], 0
+    for cid, pairs in flat.items():
+        n = len(pairs)
+        record = _INDEX_HEADER.pack(Opcode.MESSAGE_INDEX, 6 + 8 * n, cid, 8 * n) + struct.pack(f"<{n}Q", *pairs)
+        parts.append(record)
+        at.append((cid, size))
+        size += len(record)
+    return b"".join(parts), at
+
+
+class _Packed:
+    """A record already packed, written where a record object would be."""
+
+    __slots__ = ("data",)
+
+    def __init__(self, data: bytes) -> None:
+        self.data = data
+
+    def write(self, rb: RecordBuilder) -> None:
+        rb.write(self.data)
+
+
+def _chunk_index(start: int, end: int, chunk_start: int, chunk_length: int, offsets: dict[int, int],
+                 index_length: int, compression: str, compressed: int, uncompressed: int) -> _Packed:
+    """mcap's ChunkIndex record, packed at once (its own write packs a field, and each of the
+    chunk's channels, at a time)."""
+    name = compression.encode()
+    k = len(offsets)
+    flat = [v for pair in offsets.items() for v in pair]
+    body = (struct.pack("<QQQQI", start, end, chunk_start, chunk_length, 10 * k)
+            + struct.pack("<" + "HQ" * k, *flat)
+            + struct.pack(f"<QI{len(name)}sQQ", index_length, len(name), name, compressed, uncompressed))
+    return _Packed(struct.pack("<BQ", Opcode.CHUNK_INDEX, len(body)) + body)
+
+
 class FastMcapWriter:
     """Writes one MCAP file to ``stream``. Not thread-safe (the recorder holds a lock)."""
 
@@ -70,10 +123,11 @@ class FastMcapWriter:
         self._chunk_messages = 0
         self._chunk_start = 0
         self._chunk_end = 0
-        self._index: dict[int, list[int]] = {}  # channel -> [log_time, offset, log_time, offset...]
+        # The open chunk's message index: per message, its channel, log time and offset in the chunk.
+        self._index: tuple[array, array, array] = (array("i"), array("q"), array("q"))
         self._schemas: dict[int, Schema] = {}
         self._channels: dict[int, Channel] = {}
-        self._chunk_indexes: list[ChunkIndex] = []
+        self._chunk_indexes: list[_Packed] = []
         self._metadata_indexes: list[MetadataIndex] = []
         self._counts: defaultdict[int, int] = defaultdict(int)
         self._message_count = 0
@@ -135,20 +189,78 @@ class FastMcapWriter:
             self._chunk_start = log_time
         elif log_time > self._chunk_end:
             self._chunk_end = log_time
-        index = self._index.get(channel_id)
-        if index is None:
-            index = self._index[channel_id] = []
-        index.append(log_time)
-        index.append(self._chunk_bytes)
+        cids, times, offsets = self._index
+        cids.append(channel_id)
+        times.append(log_time)
+        offsets.append(self._chunk_bytes)
         header = _MESSAGE_HEADER.pack(Opcode.MESSAGE, _MESSAGE_OVERHEAD + len(data), channel_id, sequence,
                                       log_time, publish_time)
         self._chunk.append(header)
         self._chunk.append(data)
         self._chunk_bytes += _MESSAGE_HEADER.size + len(data)
         self._chunk_messages += 1
-        self._counts[channel_id] += 1
         if self._chunk_bytes > self.chunk_size:
             self._finish_chunk()
+
+    def add_messages(self, messages: Iterable[tuple[int, int, int, bytes]], sequences: Any) -> None:
+        """Append many messages, each ``(channel_id, log_time, publish_time, data)``, as
+        :meth:`add_message` one by one would (the same records, the same chunks), its
+        sequence number the next of ``sequences[channel_id]`` (advanced)."""
+        pack = _MESSAGE_HEADER.pack
+        op, overhead, size = Opcode.MESSAGE, _MESSAGE_OVERHEAD, _MESSAGE_HEADER.size
+        limit = self.chunk_size
+        add = self._chunk.extend
+        cids, times, offsets = self._index
+        at = self._chunk_bytes
+        n = self._chunk_messages
+        start, end = self._chunk_start, self._chunk_end
+        for cid, log_time, publish_time, data in messages:
+            if n == 0:
+                start = end = log_time
+            elif log_time < start:
+                start = log_time
+            elif log_time > end:
+                end = log_time
+            cids.append(cid)
+            times.append(log_time)
+            offsets.append(at)
+            seq = sequences[cid]
+            sequences[cid] = seq + 1
+            add((pack(op, overhead + len(data), cid, seq, log_time, publish_time), data))
+            at += size + len(data)
+            n += 1
+            if at > limit:
+                self._chunk_bytes, self._chunk_messages = at, n
+                self._chunk_start, self._chunk_end = start, end
+                self._finish_chunk()
+                add = self._chunk.extend
+                cids, times, offsets = self._index
+                at, n = 0, 0
+        self._chunk_bytes, self._chunk_messages = at, n
+        self._chunk_start, self._chunk_end = start, end
+
+    # -- records made elsewhere (recordings.native) ------------------------------------------------------
+    @property
+    def chunk_state(self) -> tuple[int, int, int, int]:
+        """The open chunk's size, message count, first and last log time."""
+        return self._chunk_bytes, self._chunk_messages, self._chunk_start, self._chunk_end
+
+    def add_records(self, data: bytes, cids: array, times: array, offsets: array,
+                    state: tuple[int, int, int, int]) -> None:
+        """Message records packed elsewhere as :meth:`add_message` packs them, at the end of
+        the open chunk, with their index entries; ``state`` is :attr:`chunk_state` after them.
+        The caller closes a chunk that is full (:meth:`close_chunk`)."""
+        if data:
+            self._chunk.append(data)
+            index = self._index
+            index[0].extend(cids)
+            index[1].extend(times)
+            index[2].extend(offsets)
+        self._chunk_bytes, self._chunk_messages, self._chunk_start, self._chunk_end = state
+
+    def close_chunk(self) -> None:
+        """Write the open chunk now (if it has messages)."""
+        self._finish_chunk()
 
     def _finish_chunk(self) -> None:
         """Write the open chunk (if it has messages) and its message indexes."""
@@ -170,21 +282,23 @@ class FastMcapWriter:
         self._emit()
         index_start = self._offset
         offsets: dict[int, int] = {}
-        for cid, flat in self._index.items():
-            offsets[cid] = index_start + self._rb.count
-            MessageIndex(channel_id=cid, records=list(zip(flat[0::2], flat[1::2]))).write(self._rb)
-        index_length = self._rb.count
-        self._emit()
-        self._chunk_indexes.append(ChunkIndex(
-            message_start_time=self._chunk_start, message_end_time=self._chunk_end,
-            chunk_start_offset=chunk_start, chunk_length=chunk_length, message_index_offsets=offsets,
-            message_index_length=index_length, compression="" if self._compress is None else self.compression,
-            compressed_size=len(packed), uncompressed_size=len(raw)))
+        data, at = _index_records(*self._index)
+        counts = self._counts
+        for cid, record_at in at:
+            offsets[cid] = index_start + record_at
+        for cid, n in Counter(self._index[0]).items():
+            counts[cid] += n
+        self._stream.write(data)
+        self._offset += len(data)
+        index_length = len(data)
+        self._chunk_indexes.append(_chunk_index(
+            self._chunk_start, self._chunk_end, chunk_start, chunk_length, offsets, index_length,
+            "" if self._compress is None else self.compression, len(packed), len(raw)))
         self._chunk_count += 1
         self._chunk = []
         self._chunk_bytes = 0
         self._chunk_messages = 0
-        self._index = {}
+        self._index = (array("i"), array("q"), array("q"))
 
     def flush(self) -> None:
         """Close the open chunk and hand everything to the OS."""

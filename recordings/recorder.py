@@ -19,28 +19,38 @@ is visible"; rosbag2/MCAP as the model).
 * Fast: payloads are written exactly as they came from the bus (never re-serialised), frames
   and schemaless keys without being decoded (see :class:`_Route`), into large chunks by
   :class:`recordings.mcap_writer.FastMcapWriter`; ``strict=True`` decodes every payload.
+  :meth:`Recorder.write_batch` (what :meth:`Recorder.attach` subscribes with, to get a
+  ``Bus.put_batch`` whole) writes many samples under one lock: the records ``write`` would.
 """
 
 from __future__ import annotations
 
+import ctypes
 import json
 import re
 import threading
 import time
+from array import array
+from collections import Counter
+from itertools import accumulate
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal, Mapping
+from typing import Any, Literal, Mapping, Sequence
 
 from bus.keys import Keys
 from bus.messages import RunMeta
 
 from . import meta as meta_mod
-from .foxglove import FoxgloveView
-from .schemas import FRAME, IR_LIGHT, RECORDER_ERROR_TOPIC, SCENE_TOPIC, UNTYPED, kind_of
+from . import native
+from .foxglove import FoxgloveView, timestamp_field
+from .schemas import FRAME, IR_LIGHT, LOG_TOPIC, RECORDER_ERROR_TOPIC, SCENE_TOPIC, UNTYPED, kind_of
 from .sink import CHUNK_SIZE, McapSink
 from .stats import Tally, kind_field
 
 TimeSource = Literal["auto", "sim", "wall"]
+#: A sim or wall time at or past this is no time (2^62 ns: year 2116): the sample is kept, its
+#: log time is the last sim time (and its publish time the receive time).
+MAX_TIME_NS = 1 << 62
 _CHECK_SIZE_EVERY = 64  # messages between file-size checks (tell() is a syscall)
 _decode = json.JSONDecoder().decode  # skips json.loads' encoding sniffing (payloads are UTF-8)
 _INT = re.compile(rb"\s*(-?\d+)\s*[,}]")
@@ -49,6 +59,27 @@ _INT = re.compile(rb"\s*(-?\d+)\s*[,}]")
 _ENVELOPE = re.compile(rb',"sim_time_ns":(\d+),"wall_time_ns":(\d+),"seq":\d+,"kind":"([^"\\]*)"')
 _ENVELOPE_HEAD = (b'{"link":', b',"src":', b',"dst":', b',"raw":')
 _STRING = re.compile(rb'\s*"([^"\\]*)"')
+#: The same from the first byte, as the bus writes every envelope (:meth:`Recorder.write_batch`):
+#: the part before its times (link, src, dst, raw: what its Foxglove line depends on), its times,
+#: its kind. No quote inside those strings, so the first ``,"sim_time_ns":`` is this one and
+#: ``_ENVELOPE`` finds the same fields.
+_ENVELOPE_AT_START = re.compile(rb'(\{"link":"[^"\\]*","src":"[^"\\]*","dst":"[^"\\]*","raw":"[^"\\]*")'
+                                rb',"sim_time_ns":(\d+),"wall_time_ns":(\d+),"seq":\d+,"kind":"([^"\\]*)"')
+_KIND_NAMES: dict[bytes, str] = {}  # a frame kind's bytes -> its name
+
+
+def _kind_name(raw: bytes) -> str:
+    name = raw.decode("utf-8", "replace")
+    if len(_KIND_NAMES) < 256:
+        _KIND_NAMES[raw] = name
+    return name
+
+
+class _NoChannel(dict):
+    """key -> channel id; 0 for a key without one yet."""
+
+    def __missing__(self, key: str) -> int:
+        return 0
 
 
 def part_path(out: Path, index: int) -> Path:
@@ -97,18 +128,19 @@ class _Route:
             m = _ENVELOPE.search(payload)
             if m is not None:
                 head = payload[:m.start()]
-                if all(name in head for name in _ENVELOPE_HEAD):
-                    return int(m.group(1)), int(m.group(2)), m.group(3).decode("utf-8", "replace")
+                sim, pub = int(m.group(1)), int(m.group(2))
+                if all(name in head for name in _ENVELOPE_HEAD) and sim < MAX_TIME_NS and pub < MAX_TIME_NS:
+                    return sim, pub, m.group(3).decode("utf-8", "replace")
         if payload[:1] != b"{":
             return None
         for name in self.required:
             if name not in payload:
                 return None
         sim = int_field(payload, b'"sim_time_ns":')
-        if sim is False or (sim is not None and sim < 0):
+        if sim is False or (sim is not None and not 0 <= sim < MAX_TIME_NS):
             return None
         pub = int_field(payload, b'"wall_time_ns":')
-        if pub is False:
+        if pub is False or (pub is not None and not 0 <= pub < MAX_TIME_NS):
             return None
         kind = None
         if self.kind is not None:
@@ -117,6 +149,10 @@ class _Route:
                 m = _STRING.match(payload, i + len(self.kind))
                 kind = m.group(1).decode("utf-8", "replace") if m else "?"
         return sim, pub, kind
+
+
+def _is_time(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and 0 <= value < MAX_TIME_NS
 
 
 def int_field(payload: bytes, name: bytes) -> int | None | bool:
@@ -159,12 +195,18 @@ class Recorder:
         self.strict = strict
         self._routes: dict[str, _Route] = {}  # key -> how its samples are recorded
         self._cids: dict[str, int] = {}  # topic -> channel id in the open part
+        self._frame_cids = _NoChannel()  # key of a frame -> its channel id in the open part (native path)
+        self._native: native.FrameBatch | None = None  # the compiled batch path, once used
+        # its frames counted by key, not yet in the open part's tally (see _fold)
+        self._pending: Counter[str] = Counter()
+        self._pending_noise: Counter[str] = Counter()
+        self._pending_frames = 0
         self.paths: list[Path] = []
         self._required: dict[str, tuple[str, ...]] = {}
         self._last_sim_ns = 0
         self._since_size_check = 0
         self._part_first_ns: int | None = None
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()  # reentrant: write_batch holds it around write's own paths
         self._closed = False
         if self.time_source == "sim":
             self._origin = self.start_ns
@@ -188,11 +230,15 @@ class Recorder:
                 self._origin = self.start_ns if self.time_source == "sim" else 0
                 self.meta["log_time"] = self.time_source
                 self._sink.add_metadata(self.meta)
-        bus.subscribe(self.keys.all, self.on_sample)
+        bus.subscribe_batch(self.keys.all, self.on_samples)
 
     def on_sample(self, key: str, payload: bytes) -> None:
         """Bus handler: record one sample received now."""
         self.write(key, payload)
+
+    def on_samples(self, samples: Sequence[tuple[str, bytes]]) -> None:
+        """Bus batch handler (``Bus.subscribe_batch``): record samples received now."""
+        self.write_batch(samples)
 
     # -- writing ----------------------------------------------------------------------------
     def write(self, key: str, payload: bytes, *, receive_wall_ns: int | None = None) -> None:
@@ -201,6 +247,227 @@ class Recorder:
         route = self._routes.get(key)
         if route is None:
             route = self._routes[key] = _Route.of(self.keys.relative(key))
+        self._write_one(route, key, payload, wall)
+
+    def write_batch(self, samples: Sequence[tuple[str, bytes]], *, receive_wall_ns: int | None = None) -> None:
+        """Record ``(key, payload)`` samples in order, all received at ``receive_wall_ns``
+        (default now): the records :meth:`write` makes of each (the same topics, channels,
+        times, sequence numbers, Foxglove messages and counts), under one lock and with a
+        frame's fields read in one match. Frames as the bus writes them take that path;
+        anything else in the batch takes write's own, in its place. A rotating or strict
+        recorder writes a batch sample by sample."""
+        wall = time.time_ns() if receive_wall_ns is None else receive_wall_ns
+        if self.strict or self.rotating:
+            for key, payload in samples:
+                self.write(key, payload, receive_wall_ns=wall)
+            return
+        if self._native is None and native.lib() is not None:
+            self._native = native.FrameBatch()
+        if self._native is not None:
+            self._write_batch_native(samples, wall)
+            return
+        routes = self._routes
+        match = _ENVELOPE_AT_START.match
+        kinds = _KIND_NAMES
+        log = self._fox.log if self._fox is not None else None
+        seen = log.seen if log is not None else {}
+        out: list[tuple[int, int, int, bytes]] = []  # (channel, log time, publish time, data)
+        topics: list[str] = []  # of the frames written here, for the tally
+        times: list[int] = []
+        noise: list[str] = []
+        with self._lock:
+            if self._closed:
+                return
+            sink = self._sink
+            cids = self._cids
+            by_sim = self.time_source != "wall"
+            origin = self._origin
+            last_sim = self._last_sim_ns
+            log_cid = cids.get(LOG_TOPIC)
+            stamped, stamp = -1, b""  # the last log time and its encoded Foxglove timestamp
+            for key, payload in samples:
+                route = routes.get(key)
+                if route is None:
+                    route = routes[key] = _Route.of(self.keys.relative(key))
+                m = match(payload) if route.frame else None
+                if m is not None:
+                    head, sim_b, pub_b, kind_b = m.groups()
+                    sim, pub = int(sim_b), int(pub_b)
+                if m is None or payload[-1] != 125 or sim >= MAX_TIME_NS or pub >= MAX_TIME_NS:
+                    sink.write_many(out)  # not ending in "}", or no time: write's own path
+                    out = []
+                    self._last_sim_ns = last_sim
+                    self._write_one(route, key, payload, wall)
+                    last_sim = self._last_sim_ns
+                    log_cid = cids.get(LOG_TOPIC)
+                    continue
+                if sim > last_sim:
+                    last_sim = sim
+                log_time = origin + sim if by_sim else wall
+                topic = route.topic
+                cid = cids.get(topic)
+                if cid is None:  # registered between the messages before it and its own
+                    sink.write_many(out)
+                    out = []
+                    cid = cids[topic] = sink.channel(topic)
+                out.append((cid, log_time, pub, payload))
+                topics.append(topic)
+                times.append(log_time)
+                kind = kinds.get(kind_b) or _kind_name(kind_b)
+                if kind == "noise":
+                    noise.append(topic)
+                if log is None:
+                    continue
+                rest = seen.get((head, kind))  # FrameLog.log_payload, its cache read here
+                if rest is None:
+                    try:
+                        rest = log.rest(payload, (head, kind))
+                    except (ValueError, KeyError, TypeError):
+                        continue
+                if log_time != stamped:
+                    stamped, stamp = log_time, timestamp_field(log_time)
+                if log_cid is None:
+                    sink.write_many(out)
+                    out = []
+                    log_cid = cids[LOG_TOPIC] = sink.channel(LOG_TOPIC)
+                out.append((log_cid, log_time, log_time, stamp + rest))
+            sink.write_many(out)
+            self._last_sim_ns = last_sim
+            if times:
+                if self._part_first_ns is None:
+                    self._part_first_ns = times[0]
+                self._part.add_counts(Counter(topics), Counter(noise))
+                self._part.span(min(times), max(times))
+
+    def _write_batch_native(self, samples: Sequence[tuple[str, bytes]], wall: int) -> None:
+        """write_batch in C (:mod:`recordings.native`): the frames' records packed there, the
+        rest — other samples, new channels and Foxglove lines, full chunks — here, in place."""
+        fb = self._native
+        assert fb is not None
+        n = len(samples)
+        if not n:
+            return
+        keys, payloads = zip(*samples)
+        buf = b"".join(payloads)
+        offs = array("q", accumulate(map(len, payloads), initial=0))
+        fb.prepare(n)
+        st = fb.state
+        routes = self._routes
+        log = self._fox.log if self._fox is not None else None
+        slow: list[int] = []  # items written by write's own path
+        with self._lock:
+            if self._closed:
+                return
+            cids = array("i", map(self._frame_cids.__getitem__, keys))
+            st.buf, st.offs, st.n, st.cids = buf, offs.buffer_info()[0], n, cids.buffer_info()[0]
+            st.by_sim, st.origin, st.wall = self.time_source != "wall", self._origin, wall
+            st.rests, st.limit = fb.rests, self._sink.writer.chunk_size
+            ix_cid, ix_time, ix_off = fb.ix
+            st.ix_cid, st.ix_time, st.ix_off = (a.buffer_info()[0] for a in fb.ix)
+            st.ix_cap, st.frames, st.last_sim = len(ix_cid), 0, self._last_sim_ns
+            st.noise, st.item, st.phase, st.no_log = ctypes.addressof(fb.noise), 0, 0, 0
+
+            def load() -> None:  # after Python wrote: the sink's state into C's
+                sink = self._sink
+                st.chunk_bytes, st.chunk_messages, st.chunk_start, st.chunk_end = sink.writer.chunk_state
+                st.seqs, st.nseqs = sink.sequences.buffer_info()
+                st.log_cid = -1 if log is None else self._cids.get(LOG_TOPIC, 0)
+                st.out, st.out_cap, st.out_len, st.ix_len = ctypes.addressof(fb.out), len(fb.out), 0, 0
+
+            def commit() -> None:  # before Python writes: C's records into the sink
+                k = st.ix_len
+                self._sink.writer.add_records(
+                    ctypes.string_at(fb.out, st.out_len), ix_cid[:k], ix_time[:k], ix_off[:k],
+                    (st.chunk_bytes, st.chunk_messages, st.chunk_start, st.chunk_end))
+                self._sink.dirty = True
+                st.out_len = st.ix_len = 0
+
+            load()
+            while True:
+                code = fb.run()
+                if code == native.DONE:
+                    commit()
+                    break
+                if code == native.REST_MISS:  # a Foxglove line not seen yet: FrameLog makes it
+                    head = buf[st.head_at:st.head_at + st.head_len]
+                    kind_b = buf[st.kind_at:st.kind_at + st.kind_len]
+                    kind = _KIND_NAMES.get(kind_b) or _kind_name(kind_b)
+                    assert log is not None
+                    rest = log.seen.get((head, kind))
+                    if rest is None:
+                        try:
+                            rest = log.rest(payloads[st.item], (head, kind))
+                        except (ValueError, KeyError, TypeError):  # no envelope after all: no line
+                            st.no_log = 1
+                            continue
+                    fb.remember(head, kind_b, rest)
+                    continue
+                if code == native.OUT_FULL and st.out_len == 0:  # one record larger than the buffer
+                    fb.grow_out(2 * len(payloads[st.item]) + 4096)
+                    load()
+                    continue
+                commit()
+                if code == native.CHUNK_FULL:
+                    self._sink.writer.close_chunk()
+                elif code == native.NEW_LOG_CHANNEL:
+                    self._cids[LOG_TOPIC] = self._sink.channel(LOG_TOPIC)
+                elif code in (native.NEW_CHANNEL, native.NOT_FRAME):
+                    i = st.item
+                    key = keys[i]
+                    route = routes.get(key)
+                    if route is None:
+                        route = routes[key] = _Route.of(self.keys.relative(key))
+                    if code == native.NEW_CHANNEL and route.frame:
+                        cid = self._cids.get(route.topic)
+                        if cid is None:
+                            cid = self._cids[route.topic] = self._sink.channel(route.topic)
+                        cids[i] = self._frame_cids[key] = cid
+                    else:  # not a frame, or not one as the bus writes it: write's own path
+                        self._last_sim_ns = st.last_sim
+                        self._write_one(route, key, payloads[i], wall)
+                        st.last_sim = self._last_sim_ns
+                        slow.append(i)
+                        st.item = i + 1
+                elif code != native.OUT_FULL:
+                    raise RuntimeError(f"framebatch.c answered {code}")
+                load()
+            self._last_sim_ns = st.last_sim
+            if st.frames:
+                self._count_frames(keys, slow, fb.noise.raw[:n], st.tmin, st.tmax)
+
+    def _count_frames(self, keys: Sequence[str], slow: list[int], noise: bytes, first: int, last: int) -> None:
+        """Count the frames of a native batch (every key but those of ``slow``): by key now,
+        by topic and link when the tally is read (:meth:`_fold`)."""
+        pending = self._pending
+        pending.update(keys)
+        for i in slow:
+            pending[keys[i]] -= 1
+        self._pending_frames += len(keys) - len(slow)
+        i = noise.find(1)
+        while i >= 0:
+            self._pending_noise[keys[i]] += 1
+            i = noise.find(1, i + 1)
+        if self._part_first_ns is None:
+            self._part_first_ns = first
+        self._part.span(first, last)
+
+    def _fold(self) -> None:
+        """The frames counted by key into the open part's tally (under the lock)."""
+        if not self._pending_frames:
+            return
+        by_topic: Counter[str] = Counter()
+        for key, k in self._pending.items():
+            if k:
+                by_topic[self._routes[key].topic] += k
+        noise: Counter[str] = Counter()
+        for key, k in self._pending_noise.items():
+            noise[self._routes[key].topic] += k
+        self._part.add_counts(by_topic, noise)
+        self._pending.clear()
+        self._pending_noise.clear()
+        self._pending_frames = 0
+
+    def _write_one(self, route: _Route, key: str, payload: bytes, wall: int) -> None:
         fields = route.scan(payload) if route.fast and not self.strict else None
         if fields is None:
             self._write_checked(route, key, payload, wall)
@@ -235,7 +502,7 @@ class Recorder:
             self._error(topic, key, payload, wall, "not-json", str(exc))
             return
         sim = obj.get("sim_time_ns") if isinstance(obj, dict) else None
-        if not isinstance(sim, int) or isinstance(sim, bool) or sim < 0:
+        if not _is_time(sim):
             sim = None
         required = self._required.get(topic)
         if required is None:
@@ -250,7 +517,7 @@ class Recorder:
             if sim is not None and sim > self._last_sim_ns:
                 self._last_sim_ns = sim
             log_time = wall if self.time_source == "wall" else self._origin + (self._last_sim_ns if sim is None else sim)
-            self._write_locked(topic, payload, obj, log_time, pub if isinstance(pub, int) else wall)
+            self._write_locked(topic, payload, obj, log_time, pub if _is_time(pub) else wall)
             if self._closed:
                 return
             if self._fox is not None:
@@ -309,6 +576,7 @@ class Recorder:
         return self.rotate_bytes is not None or self.rotate_ns is not None
 
     def _close_part(self) -> None:
+        self._fold()
         self._snapshot()
         self._sink.close(self._part)
         self._done.merge(self._part)
@@ -324,6 +592,7 @@ class Recorder:
         self.paths.append(path)
         self._part_first_ns = None
         self._cids = {}  # channel ids are per file
+        self._frame_cids = _NoChannel()
         return sink
 
     def _maybe_rotate(self, log_time: int | None) -> None:
@@ -378,6 +647,7 @@ class Recorder:
     def tally(self) -> Tally:
         """Counts of everything written so far (all parts)."""
         with self._lock:
+            self._fold()
             out = Tally()
             out.merge(self._done)
             out.merge(self._part)
@@ -386,7 +656,7 @@ class Recorder:
     @property
     def messages(self) -> int:
         """Samples written so far (cheap; for polling)."""
-        return self._done.messages + self._part.messages
+        return self._done.messages + self._part.messages + self._pending_frames
 
     def __enter__(self) -> "Recorder":
         return self

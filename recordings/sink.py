@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from array import array
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -42,7 +43,7 @@ class McapSink:
         self._writer.start(profile="", library=LIBRARY)
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
-        self._seq: list[int] = [0]  # next sequence number, by channel id
+        self.sequences = array("I", [0])  # next sequence number, by channel id (recordings.native reads it)
         self.dirty = False
         self.closed = False
 
@@ -59,7 +60,7 @@ class McapSink:
             key = topic if topic.startswith("_") or kind.foxglove else f"hexbot/{self.fleet}/{topic}"
             cid = self._channels[topic] = self._writer.register_channel(
                 topic, kind.message_encoding, sid, {"key": key, "fleet": self.fleet})
-            self._seq.append(0)
+            self.sequences.append(0)
         return cid
 
     def write(self, topic: str, data: bytes, log_time_ns: int, publish_time_ns: int) -> None:
@@ -68,10 +69,22 @@ class McapSink:
 
     def write_to(self, cid: int, data: bytes, log_time_ns: int, publish_time_ns: int) -> None:
         """Append one message to a channel from :meth:`channel` (the recorder's hot path)."""
-        seq = self._seq[cid]
-        self._seq[cid] = seq + 1
+        seq = self.sequences[cid]
+        self.sequences[cid] = seq + 1
         self._writer.add_message(cid, log_time_ns, data, publish_time_ns, seq)
         self.dirty = True
+
+    def write_many(self, messages: list[tuple[int, int, int, bytes]]) -> None:
+        """Append messages, each ``(channel id, log time, publish time, data)``, in order
+        (:meth:`write_to` for each, in one call)."""
+        if messages:
+            self._writer.add_messages(messages, self.sequences)
+            self.dirty = True
+
+    @property
+    def writer(self) -> FastMcapWriter:
+        """The file's writer (for records packed elsewhere: :mod:`recordings.native`)."""
+        return self._writer
 
     def add_metadata(self, meta: Mapping[str, Any], name: str = METADATA_NAME) -> None:
         self._writer.add_metadata(name, to_mcap(meta))

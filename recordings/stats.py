@@ -6,7 +6,7 @@ from __future__ import annotations
 from collections import Counter
 from dataclasses import dataclass, field
 from functools import lru_cache
-from typing import Any
+from typing import Any, Mapping
 
 from .schemas import RECORDER_ERROR_TOPIC, frame_link
 
@@ -84,6 +84,28 @@ class Tally:
             self.errors_by_kind["recorder:" + str(kind)] += 1
         elif has_fields:
             self.world_events_by_kind[str(kind)] += 1
+
+    def add_counts(self, by_topic: Mapping[str, int], noise_by_topic: Mapping[str, int] | None = None) -> None:
+        """Count many samples of frame topics (``noise_by_topic``: how many were noise) and of
+        topics counted per topic only: the counts :meth:`add_kind` makes of them one by one,
+        but the time span (:meth:`span`)."""
+        for topic, n in by_topic.items():
+            what, link = _classify(topic)
+            if what is not None and what != "frame":
+                raise ValueError(f"{topic}: its samples are counted by kind (add_kind)")
+            self.messages += n
+            self.by_topic[topic] += n
+            if what == "frame":
+                self.frames_by_link[link] += n
+        for topic, n in (noise_by_topic or {}).items():
+            self.noise_by_link[_classify(topic)[1]] += n
+
+    def span(self, first_ns: int, last_ns: int) -> None:
+        """Widen the time span to ``[first_ns, last_ns]``."""
+        if self.first_ns is None or first_ns < self.first_ns:
+            self.first_ns = first_ns
+        if self.last_ns is None or last_ns > self.last_ns:
+            self.last_ns = last_ns
 
     def merge(self, other: "Tally") -> None:
         """Add another tally's counts (rotated parts into the whole)."""

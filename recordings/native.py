@@ -1,0 +1,149 @@
+"""The recorder's compiled batch path for frames (``native/framebatch.c``, loaded with ctypes).
+
+A frame costs the pure-Python recorder a few microseconds (its fields read by a regex, two
+records packed, indexed and counted, its Foxglove line stamped); a fleet puts hundreds of
+thousands a second. :class:`FrameBatch` hands a whole batch of frame envelopes to C, which
+writes the records :meth:`recordings.recorder.Recorder.write` would (the same bytes, sequence
+numbers, chunk offsets) and stops whenever Python must act: a sample that is not an envelope
+as the bus writes it, a channel or a Foxglove line not seen yet, a full chunk.
+:func:`index_records` writes a chunk's MessageIndex records.
+
+The library is built with ``make -C recordings/native`` when missing or older than its source
+(only a C compiler is needed). Without it — no compiler, or ``HEXBENCH_NATIVE=0`` — :data:`LIB`
+is None and the recorder takes its pure-Python path, record for record the same.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import subprocess
+import threading
+from array import array
+from pathlib import Path
+from typing import Any
+
+HERE = Path(__file__).resolve().parent / "native"
+LIB_PATH = HERE / "build" / "libframebatch.so"
+#: fb_frames's answers (framebatch.c)
+DONE, NOT_FRAME, NEW_CHANNEL, NEW_LOG_CHANNEL, REST_MISS, CHUNK_FULL, OUT_FULL, GROW_SEQS = range(8)
+_p = ctypes.c_void_p
+_i32, _i64 = ctypes.c_int32, ctypes.c_int64
+
+
+class _Batch(ctypes.Structure):
+    """batch_t of framebatch.c."""
+
+    _fields_ = [("buf", ctypes.c_char_p), ("offs", _p), ("n", _i64), ("cids", _p), ("log_cid", _i32), ("by_sim", _i32),
+                ("origin", _i64), ("wall", _i64), ("seqs", _p), ("nseqs", _i64), ("rests", _p),
+                ("out", _p), ("out_cap", _i64), ("out_len", _i64),
+                ("chunk_bytes", _i64), ("chunk_messages", _i64), ("chunk_start", _i64), ("chunk_end", _i64),
+                ("limit", _i64), ("ix_cid", _p), ("ix_time", _p), ("ix_off", _p), ("ix_cap", _i64),
+                ("ix_len", _i64), ("frames", _i64), ("tmin", _i64), ("tmax", _i64), ("last_sim", _i64),
+                ("noise", _p), ("item", _i64), ("phase", _i32), ("no_log", _i32),
+                ("head_at", _i64), ("head_len", _i64), ("kind_at", _i64), ("kind_len", _i64),
+                ("log_time", _i64)]
+
+
+def _load() -> Any:
+    if os.environ.get("HEXBENCH_NATIVE", "1") == "0":
+        return None
+    source = HERE / "framebatch.c"
+    try:
+        if source.exists() and (not LIB_PATH.exists() or source.stat().st_mtime > LIB_PATH.stat().st_mtime):
+            subprocess.run(["make", "-s", "-C", str(HERE)], check=True, capture_output=True, timeout=120)
+        lib = ctypes.CDLL(str(LIB_PATH))
+    except (OSError, subprocess.SubprocessError):
+        return None  # no compiler, no make: the pure-Python path
+    lib.fb_table_new.restype = _p
+    lib.fb_table_free.argtypes = [_p]
+    lib.fb_table_put.argtypes = [_p, ctypes.c_char_p, _i32, ctypes.c_char_p, _i32, ctypes.c_char_p, _i32]
+    lib.fb_table_put.restype = ctypes.c_int
+    lib.fb_frames.argtypes = [ctypes.POINTER(_Batch)]
+    lib.fb_frames.restype = ctypes.c_int
+    lib.fb_index.argtypes = [_p, _p, _p, _i64, _p, _p, _p, ctypes.POINTER(_i64)]
+    lib.fb_index.restype = _i64
+    return lib
+
+
+_lock = threading.Lock()
+_lib: Any = False  # not loaded yet
+
+
+def lib() -> Any:
+    """The loaded library, or None (the pure-Python path)."""
+    global _lib
+    if _lib is False:
+        with _lock:
+            if _lib is False:
+                _lib = _load()
+    return _lib
+
+
+def _address(a: array) -> int:
+    return a.buffer_info()[0]
+
+
+def index_records(cids: array, times: array, offsets: array) -> tuple[bytes, list[tuple[int, int]]] | None:
+    """A chunk's MessageIndex records (channels in the order of their first message) and, per
+    channel, ``(id, offset of its record in those bytes)``; None without the library."""
+    native = lib()
+    if native is None:
+        return None
+    n = len(cids)
+    out = ctypes.create_string_buffer(15 * n + 16 * n)
+    chan = array("i", bytes(4 * n))
+    at = array("q", bytes(8 * n))
+    size = _i64(0)
+    channels = native.fb_index(_address(cids), _address(times), _address(offsets), n, out, _address(chan),
+                               _address(at), ctypes.byref(size))
+    if channels < 0:
+        raise MemoryError("fb_index")
+    return out.raw[:size.value], list(zip(chan[:channels], at[:channels]))
+
+
+class FrameBatch:
+    """The C side of one recorder's batches: its table of Foxglove lines, its buffers."""
+
+    OUT_BYTES = 1 << 20
+
+    def __init__(self) -> None:
+        native = lib()
+        assert native is not None
+        self.lib = native
+        self.rests = native.fb_table_new()
+        if not self.rests:
+            raise MemoryError("fb_table_new")
+        self.state = _Batch()
+        self.out = ctypes.create_string_buffer(self.OUT_BYTES)
+        self.noise = ctypes.create_string_buffer(0)
+        self.ix: tuple[array, array, array] = (array("i"), array("q"), array("q"))
+
+    def __del__(self) -> None:
+        rests, self.rests = getattr(self, "rests", None), None
+        if rests:
+            self.lib.fb_table_free(rests)
+
+    def remember(self, head: bytes, kind: bytes, rest: bytes) -> None:
+        """A Foxglove line of (head, kind), for the next frames that have them."""
+        if self.lib.fb_table_put(self.rests, head, len(head), kind, len(kind), rest, len(rest)) != 0:
+            raise MemoryError("fb_table_put")
+
+    def grow_out(self, at_least: int) -> None:
+        size = max(at_least, 2 * len(self.out))
+        self.out = ctypes.create_string_buffer(size)
+
+    def prepare(self, n: int) -> None:
+        """Room for the index entries and noise flags of ``n`` samples (two records each)."""
+        if len(self.ix[0]) < 2 * n:
+            more = 2 * n - len(self.ix[0])
+            self.ix[0].frombytes(bytes(4 * more))
+            self.ix[1].frombytes(bytes(8 * more))
+            self.ix[2].frombytes(bytes(8 * more))
+        if len(self.noise) < n:
+            self.noise = ctypes.create_string_buffer(n)
+        else:
+            ctypes.memset(self.noise, 0, n)
+
+    def run(self) -> int:
+        return self.lib.fb_frames(ctypes.byref(self.state))

@@ -1,0 +1,152 @@
+"""Recorder.write_batch writes what Recorder.write writes, sample by sample: the same messages
+(topic, log time, publish time, sequence, data), channels, Foxglove lines and scene updates,
+counts, parts and strict-mode errors; in C (recordings.native) and in pure Python."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from mcap.reader import make_reader
+
+from bus.codec import Link, encode_ack, encode_msg1, parse
+from bus.envelope import Envelope
+from bus.transport import _envelope_json
+from recordings import native
+from recordings.recorder import Recorder
+from synthetic import run_synthetic
+
+FLEET = "batchtest"
+ROOT = f"hexbot/{FLEET}"
+START_NS = 1_700_000_000_000_000_000
+WALL_NS = 1_700_000_123_000_000_000
+
+
+def _odd_samples() -> list[tuple[str, bytes]]:
+    """Frames that are not envelopes as the bus writes them, and what is no frame at all."""
+    env = Envelope.of(parse(Link.SIDE, encode_msg1(1, 2, 3)), src="m1.comm", dst="*", sim_time_ns=5_000,
+                      wall_time_ns=WALL_NS, seq=1)
+    good = _envelope_json(env)
+    obj = json.loads(good)
+    reordered = json.dumps(dict(reversed(list(obj.items())))).encode()
+    return [
+        (f"{ROOT}/frame/side/m1.comm", reordered),  # fields in another order: the regex path
+        (f"{ROOT}/frame/side/m1.comm", good.replace(b'"m1.comm"', b'"m1\\"x"', 1)),  # an escaped quote
+        (f"{ROOT}/frame/side/m1.comm", good.replace(b'"sim_time_ns":5000', b'"sim_time_ns":123456789012345678901')),
+        (f"{ROOT}/frame/side/m1.comm", good.replace(b'"sim_time_ns":5000', b'"sim_time_ns":-5')),
+        (f"{ROOT}/frame/side/m1.comm", good[:-1]),  # cut short
+        (f"{ROOT}/frame/side/m1.comm", good.replace(b'"kind":"msg1"', b'"kind":"noise"')),
+        (f"{ROOT}/frame/side/m1.comm", good.replace(b'"raw":"', b'"raw":"zz')),  # no envelope behind the head
+        (f"{ROOT}/frame/side/m1.comm", b""),
+        (f"{ROOT}/frame/side/m1.comm", b"not json"),
+        (f"{ROOT}/frame/side/m1.comm", b"{}"),
+        (f"{ROOT}/ir/tx/m1.comm", good),  # an envelope on a key that is no frame
+        (f"{ROOT}/event/m1.comm", b'{"kind":"overrun","src":"m1.comm","sim_time_ns":7000}'),
+        ("frame/pc/pc", good),  # a relative topic
+        (f"{ROOT}/world/actuators/m1", b"[1,2]"),
+    ]
+
+
+def _many_frames(n: int) -> list[tuple[str, bytes]]:
+    frames = [(Link.SIDE, parse(Link.SIDE, encode_msg1(3, -2, 4))), (Link.CENTRE, parse(Link.CENTRE, encode_ack(21))),
+              (Link.SIDE, parse(Link.SIDE, b"\x07\x07"))]
+    out = []
+    for i in range(n):
+        link, frame = frames[i % len(frames)]
+        src = f"m{i % 37}.comm"
+        env = Envelope.of(frame, src=src, dst="*", sim_time_ns=1_000_000_000 + i * 999_999,
+                          wall_time_ns=WALL_NS + i, seq=i)
+        out.append((f"{ROOT}/frame/{link.value}/{src}", _envelope_json(env)))
+    return out
+
+
+@pytest.fixture(scope="module")
+def samples() -> list[tuple[str, bytes]]:
+    """A synthetic run's samples as the bus delivered them (frames, records, malformed), then
+    odd ones, then a run of frames on many topics."""
+    got: list[tuple[str, bytes]] = []
+    run_synthetic(FLEET, attach=lambda bus: bus.subscribe(bus.keys.all, lambda k, p: got.append((k, p))),
+                  modules=4, moves=3, filler_frames=20)
+    return got + _odd_samples() + _many_frames(3000) + _odd_samples()
+
+
+def _messages(path) -> list[tuple]:
+    with open(path, "rb") as f:
+        return [(ch.topic, m.log_time, m.publish_time, m.sequence, m.data)
+                for _, ch, m in make_reader(f).iter_messages(log_time_order=False)]
+
+
+def _channels(path) -> list[tuple]:
+    with open(path, "rb") as f:
+        summ = make_reader(f).get_summary()
+    return [(c.id, c.topic, c.schema_id, tuple(sorted(c.metadata.items()))) for c in summ.channels.values()]
+
+
+def _record(path, samples, batch: int | None, **kwargs) -> Recorder:
+    rec = Recorder(path, fleet=FLEET, time_source=kwargs.pop("time_source", "sim"), start_ns=START_NS,
+                   flush_interval_s=3600, **kwargs)
+    if batch is None:
+        for key, payload in samples:
+            rec.write(key, payload, receive_wall_ns=WALL_NS)
+    else:
+        for i in range(0, len(samples), batch):
+            rec.write_batch(samples[i:i + batch], receive_wall_ns=WALL_NS)
+    rec.close()
+    return rec
+
+
+def _same(tmp_path, samples, batch: int, **kwargs) -> None:
+    one = _record(tmp_path / "one.mcap", samples, None, **kwargs)
+    many = _record(tmp_path / "many.mcap", samples, batch, **kwargs)
+    assert len(one.paths) == len(many.paths)
+    for a, b in zip(one.paths, many.paths):
+        got, want = _messages(b), _messages(a)
+        assert len(got) == len(want)
+        for i, (g, w) in enumerate(zip(got, want)):
+            assert g == w, f"message {i} of {a.name}: {g[:4]} != {w[:4]}"
+        assert _channels(b) == _channels(a)
+    assert many.tally.to_dict() == one.tally.to_dict()
+
+
+@pytest.fixture(params=["native", "python"])
+def path_kind(request, monkeypatch):
+    if request.param == "native":
+        if native.lib() is None:
+            pytest.skip("no C compiler: the native batch path is not built")
+    else:
+        monkeypatch.setattr(native, "_lib", None)
+    return request.param
+
+
+@pytest.mark.parametrize("batch", [1, 7, 500])
+def test_a_batch_writes_what_write_writes(tmp_path, samples, batch, path_kind):
+    _same(tmp_path, samples, batch)
+
+
+def test_small_chunks_split_a_frame_from_its_log_line_alike(tmp_path, samples, path_kind):
+    _same(tmp_path, samples, 333, chunk_size=1500)
+
+
+def test_without_foxglove_and_on_wall_time(tmp_path, samples, path_kind):
+    _same(tmp_path, samples, 250, foxglove=False)
+    _same(tmp_path / "wall", samples, 250, time_source="wall")
+
+
+def test_rotation_cuts_the_same_parts(tmp_path, samples, path_kind):
+    _same(tmp_path, samples, 100, rotate_bytes=60_000)
+    _same(tmp_path / "s", samples, 100, rotate_s=0.5)
+
+
+def test_strict_mode_still_decodes_every_payload(tmp_path, samples, path_kind):
+    _same(tmp_path, samples, 64, strict=True)
+    with open(tmp_path / "many.mcap", "rb") as f:
+        topics = {ch.topic for _, ch, _ in make_reader(f).iter_messages()}
+    assert "_recorder/error" in topics
+
+
+def test_the_batch_path_derives_foxglove_lines_and_scene(tmp_path, samples, path_kind):
+    rec = _record(tmp_path / "b.mcap", samples, 500)
+    topics = [t for t, *_ in _messages(rec.paths[0])]
+    assert topics.count("foxglove/log") >= rec.tally.frames - 20  # a line per frame but the odd ones
+    assert "foxglove/scene" in topics
+    assert rec.tally.noise_by_link["side"] >= 2
