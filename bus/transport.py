@@ -382,11 +382,45 @@ class Bus:
         if self.closed or not items:
             return
         hub = self._hub
-        order = hub.order
-        matches = hub.matches
+        keys = [item[0] for item in items]
+        routes = list(map(hub.cache.get, keys))  # the subscriptions of each key, where known
+        if None in routes:
+            routes = [matches if matches is not None else hub.matches(key) for key, matches in zip(keys, routes)]
+        distinct = set(routes)
+        if all(sub.batch for subs in distinct for sub in subs):
+            self._put_batch_to_batches(items, routes, distinct)
+        else:
+            self._put_batch_by_sample(items, routes)
+        pub = self._publishers.get(self._batch_key) or self._publisher(self._batch_key)
+        if pub.matching_status.matching:
+            if hub.attachment is None:
+                pub.put(pack_batch(items))
+            else:
+                pub.put(pack_batch(items), attachment=hub.attachment)
+            hub.sent = True
+        self.published += len(items)
+
+    def _put_batch_to_batches(self, items: Samples, routes: list[tuple[Subscription, ...]],
+                              distinct: set[tuple[Subscription, ...]]) -> None:
+        """Only batch handlers here (a recorder, a monitor): each gets its samples in one
+        post, taken whole when it matches every key of the batch."""
+        subs = sorted({sub for group in distinct for sub in group}, key=lambda s: s.index)
+        if not subs:
+            return
+        n = next(self._hub.order)
+        for sub in subs:
+            if all(sub in group for group in distinct):
+                mine = list(items)
+            else:
+                mine = [item for item, group in zip(items, routes) if sub in group]
+            sub.clock.post(_deliver_batch, sub, mine, order=(n, sub.index))
+
+    def _put_batch_by_sample(self, items: Samples, routes: list[tuple[Subscription, ...]]) -> None:
+        """Per-sample handlers among them: each sample in publish order, as from put; a batch
+        handler's samples in one post, where its first sample stands."""
+        order = self._hub.order
         groups: dict[Subscription, tuple[int, list[tuple[str, bytes]]]] = {}
-        for item in items:
-            subs = matches(item[0])
+        for item, subs in zip(items, routes):
             if not subs:
                 continue
             n = next(order)
@@ -400,14 +434,6 @@ class Bus:
                     sub.clock.post(_deliver, sub, item[0], item[1], order=(n, sub.index))
         for sub, (n, group) in groups.items():  # whole: a wall clock's thread may take it at once
             sub.clock.post(_deliver_batch, sub, group, order=(n, sub.index))
-        pub = self._publishers.get(self._batch_key) or self._publisher(self._batch_key)
-        if pub.matching_status.matching:
-            if hub.attachment is None:
-                pub.put(pack_batch(items))
-            else:
-                pub.put(pack_batch(items), attachment=hub.attachment)
-            hub.sent = True
-        self.published += len(items)
 
     def put_remote(self, key: str, payload: bytes) -> None:
         """Publish to other processes only (what :meth:`put` does after the local delivery;
@@ -550,8 +576,34 @@ _dumps = json.JSONEncoder(separators=(",", ":")).encode
 
 
 def _envelope_json(e: Envelope) -> bytes:
-    """``Envelope.to_json()`` byte for byte (same keys, same order), without asdict's deep copies."""
-    return _dumps({"link": e.link, "src": e.src, "dst": e.dst, "raw": e.raw.hex(),
-                   "sim_time_ns": e.sim_time_ns, "wall_time_ns": e.wall_time_ns, "seq": e.seq,
-                   "kind": e.kind, "view": e.view, "first_byte_ns": e.first_byte_ns,
-                   "origin": e.origin, "channel": e.channel, "v": SCHEMA_VERSION}).encode()
+    """``Envelope.to_json()`` byte for byte (same keys, same order), without asdict's deep copies.
+    A frame's bytes decode to the same kind and view every time (noise aside: its reason says
+    what came around it), so their JSON is made once per (link, bytes) and kept."""
+    if e.kind == "noise":
+        return _dumps({"link": e.link, "src": e.src, "dst": e.dst, "raw": e.raw.hex(),
+                       "sim_time_ns": e.sim_time_ns, "wall_time_ns": e.wall_time_ns, "seq": e.seq,
+                       "kind": e.kind, "view": e.view, "first_byte_ns": e.first_byte_ns,
+                       "origin": e.origin, "channel": e.channel, "v": SCHEMA_VERSION}).encode()
+    key = (e.link, e.raw)
+    parts = _FRAME_PARTS.get(key)
+    if parts is None:
+        if len(_FRAME_PARTS) >= _FRAME_PARTS_MAX:
+            _FRAME_PARTS.clear()
+        parts = _FRAME_PARTS[key] = ('{"link":' + _dumps(e.link) + ',"src":',
+                                     ',"raw":"' + e.raw.hex() + '","sim_time_ns":',
+                                     ',"kind":' + _dumps(e.kind) + ',"view":' + _dumps(e.view)
+                                     + ',"first_byte_ns":')
+    names = _NAMES.get((e.src, e.dst, e.origin))
+    if names is None:
+        names = _NAMES[(e.src, e.dst, e.origin)] = (_dumps(e.src) + ',"dst":' + _dumps(e.dst),
+                                                      ',"origin":' + _dumps(e.origin) + ',"channel":')
+    first = "null" if e.first_byte_ns is None else e.first_byte_ns
+    channel = "null" if e.channel is None else e.channel
+    return (f'{parts[0]}{names[0]}{parts[1]}{e.sim_time_ns},"wall_time_ns":{e.wall_time_ns},'
+            f'"seq":{e.seq}{parts[2]}{first}{names[1]}{channel},"v":{SCHEMA_VERSION}}}').encode()
+
+
+#: the JSON of each frame's fixed parts, by (link, bytes); bounded (a fuzz run makes millions)
+_FRAME_PARTS: dict[tuple[str, bytes], tuple[str, str, str]] = {}
+_FRAME_PARTS_MAX = 1 << 16
+_NAMES: dict[tuple[str, str, str], tuple[str, str]] = {}

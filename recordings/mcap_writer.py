@@ -13,7 +13,9 @@ and channels, statistics, chunk and metadata indexes and summary offsets.
 
 from __future__ import annotations
 
+import queue
 import struct
+import threading
 import zlib
 from array import array
 from collections import Counter, defaultdict
@@ -21,7 +23,7 @@ from typing import IO, Any, Iterable
 
 from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
-from mcap.records import (Channel, Chunk, DataEnd, Footer, Header, Metadata,
+from mcap.records import (Channel, DataEnd, Footer, Header, Metadata,
                           MetadataIndex, Schema, Statistics, SummaryOffset)
 
 from bus.errors import HexbenchError
@@ -136,6 +138,10 @@ class FastMcapWriter:
         self._chunk_count = 0
         self._metadata_count = 0
         self._offset = 0  # bytes written to the stream so far
+        # Chunks closed and not yet in the file: compressed and written in order by a thread of
+        # their own (zstd and crc32 let go of the GIL), which keeps _offset while it runs.
+        self._jobs: queue.Queue | None = None
+        self._error: BaseException | None = None
 
     # -- records outside the message path ---------------------------------------------------------
     def _emit(self) -> None:
@@ -173,6 +179,7 @@ class FastMcapWriter:
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         """A metadata record (closes the open chunk first, so the record order is time order)."""
         self._finish_chunk()
+        self._settle()
         start = self._offset
         Metadata(name=name, metadata=data).write(self._rb)
         length = self._rb.count
@@ -263,47 +270,90 @@ class FastMcapWriter:
         self._finish_chunk()
 
     def _finish_chunk(self) -> None:
-        """Write the open chunk (if it has messages) and its message indexes."""
+        """Close the open chunk (if it has messages): compressed and written with its message
+        indexes by the compression thread (in order), or here without compression."""
         if self._chunk_messages == 0:
             return
         raw = b"".join(self._chunk)
-        packed = self._compress(raw) if self._compress is not None else raw
         if self._message_count == 0:
             self._start_time, self._end_time = self._chunk_start, self._chunk_end
         else:
             self._start_time = min(self._start_time, self._chunk_start)
             self._end_time = max(self._end_time, self._chunk_end)
         self._message_count += self._chunk_messages
-        chunk_start = self._offset
-        Chunk(message_start_time=self._chunk_start, message_end_time=self._chunk_end,
-              uncompressed_size=len(raw), uncompressed_crc=zlib.crc32(raw),
-              compression="" if self._compress is None else self.compression, data=packed).write(self._rb)
-        chunk_length = self._rb.count
-        self._emit()
-        index_start = self._offset
-        offsets: dict[int, int] = {}
-        data, at = _index_records(*self._index)
+        index, at = _index_records(*self._index)
         counts = self._counts
-        for cid, record_at in at:
-            offsets[cid] = index_start + record_at
         for cid, n in Counter(self._index[0]).items():
             counts[cid] += n
-        self._stream.write(data)
-        self._offset += len(data)
-        index_length = len(data)
-        self._chunk_indexes.append(_chunk_index(
-            self._chunk_start, self._chunk_end, chunk_start, chunk_length, offsets, index_length,
-            "" if self._compress is None else self.compression, len(packed), len(raw)))
         self._chunk_count += 1
+        job = (raw, self._chunk_start, self._chunk_end, index, at)
         self._chunk = []
         self._chunk_bytes = 0
         self._chunk_messages = 0
         self._index = (array("i"), array("q"), array("q"))
+        if self._compress is None:
+            self._write_chunk(job)
+            return
+        if self._jobs is None:
+            self._jobs = queue.Queue(maxsize=4)  # a compressor behind holds the writer up
+            threading.Thread(target=self._compress_loop, name="mcap-compress", daemon=True).start()
+        self._check()
+        self._jobs.put(job)
+
+    def _write_chunk(self, job: tuple[bytes, int, int, bytes, list[tuple[int, int]]]) -> None:
+        """A chunk record and its MessageIndex records at the end of the file."""
+        raw, start, end, index, at = job
+        packed = self._compress(raw) if self._compress is not None else raw
+        name = b"" if self._compress is None else self.compression.encode()
+        body = struct.pack(f"<QQQII{len(name)}sQ", start, end, len(raw), zlib.crc32(raw), len(name), name,
+                           len(packed))
+        header = struct.pack("<BQ", Opcode.CHUNK, len(body) + len(packed)) + body
+        chunk_start = self._offset
+        self._stream.write(header)
+        self._stream.write(packed)
+        chunk_length = len(header) + len(packed)
+        index_start = chunk_start + chunk_length
+        self._stream.write(index)
+        self._offset = index_start + len(index)
+        self._chunk_indexes.append(_chunk_index(
+            start, end, chunk_start, chunk_length, {cid: index_start + a for cid, a in at}, len(index),
+            name.decode(), len(packed), len(raw)))
+
+    def _compress_loop(self) -> None:
+        jobs = self._jobs
+        assert jobs is not None
+        while True:
+            job = jobs.get()
+            try:
+                if job is not None and self._error is None:
+                    self._write_chunk(job)
+            except BaseException as exc:  # raised again in the writer's thread (_check)
+                self._error = exc
+            finally:
+                jobs.task_done()
+            if job is None:
+                return
+
+    def _check(self) -> None:
+        if self._error is not None:
+            raise self._error
+
+    def _settle(self) -> None:
+        """Wait until every closed chunk is in the file (before anything else is written)."""
+        if self._jobs is not None:
+            self._jobs.join()
+        self._check()
 
     def flush(self) -> None:
         """Close the open chunk and hand everything to the OS."""
         self._finish_chunk()
+        self._settle()
         self._stream.flush()
+
+    def written(self) -> int:
+        """Bytes in the file once the closed chunks are (the open one is not counted)."""
+        self._settle()
+        return self._offset
 
     @property
     def pending_bytes(self) -> int:
@@ -314,8 +364,13 @@ class FastMcapWriter:
     def finish(self) -> None:
         """Write the data end, the summary section, the footer and the closing magic."""
         if self._chunk_messages == 0 and self._chunk:  # schemas/channels with no message yet
+            self._settle()
             self._chunk_messages_only_defs()
         self._finish_chunk()
+        self._settle()
+        if self._jobs is not None:
+            self._jobs.put(None)  # the compression thread ends
+            self._jobs = None
         DataEnd(data_section_crc=0).write(self._rb)
         self._emit()
         summary_start = self._offset

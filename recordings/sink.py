@@ -98,7 +98,7 @@ class McapSink:
 
     def size(self) -> int:
         """Bytes in the file so far (the chunk in progress is not counted)."""
-        return self._file.tell()
+        return self._writer.written()
 
     def close(self, tally: Tally | None = None) -> None:
         """Write the counts (if given), the summary section and the footer."""

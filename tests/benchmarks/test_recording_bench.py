@@ -8,28 +8,40 @@ Recording and replay throughput (run alone: ``pytest -s tests/benchmarks/test_re
   back; and the same with ``strict=True`` (every payload JSON-decoded), for comparison;
 * end-to-end: frames/s published on one zenoh session and recorded by a Recorder on another
   (reliable, blocking congestion control, so a loss would be a bug), count-verified;
+* batches (what the fleet core puts, issue 43): frame envelopes of a 1000-module fleet put with
+  ``Bus.put_batch`` 500 at a time on a virtual clock, recorded by a Recorder attached to the bus,
+  from the first batch to the closed file, counted back with the mcap reader (target
+  ``BATCH_TARGET``); the same to ``hexbench record`` in another process over zenoh;
 * replay: sim seconds turned into an .rrd per wall second.
 """
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
 import threading
 import time
+from collections import Counter
 
 import zenoh
+from mcap.reader import make_reader
 
-from bus.clock import WallClock
+from bus.clock import VirtualClock, WallClock
 from bus.codec import Link, encode_ack, encode_command, encode_msg1, encode_relay, parse
 from bus.envelope import Envelope
 from bus.session import SessionOptions, free_port, open_session
-from bus.transport import Bus
+from bus.transport import BATCH_PREFIX, Bus, _envelope_json
 from recordings.reader import summary
 from recordings.recorder import Recorder
 from recordings.replay import replay
 from synthetic import run_synthetic
 
 WRITER_TARGET = 100_000  # frames/s
+BATCH_TARGET = 300_000  # frames/s, put_batch to closed file
 REPLAY_TARGET = 50.0  # x real time
+BATCH = 500
 
 
 def _payloads(n: int) -> list[tuple[str, bytes]]:
@@ -118,6 +130,112 @@ def test_end_to_end_rate_over_zenoh(tmp_path):
     _report("end-to-end (zenoh -> Bus -> Recorder -> MCAP)", got / dt, "frames/s")
     print(f"[bench] publisher alone put {n} frames at {n / t_pub:,.0f} frames/s; received {got}/{n}")
     assert got == n, f"lost {n - got} frames"
+
+
+def _fleet_frames(fleet: str, n: int, modules: int = 1000) -> list[tuple[str, bytes]]:
+    """``n`` frame envelopes of a ``modules``-module fleet as the bus writes them: each module on
+    one of three links (a topic each), MSG1 probes, relays and ACKs at increasing sim times."""
+    links = [Link.SIDE, Link.CENTRE, Link.UART0_DOWN]
+    raws = {Link.SIDE: encode_msg1(3, -2, 4), Link.CENTRE: encode_ack(21), Link.UART0_DOWN: encode_relay(21, 4, 8, 4, 9)}
+    frames = {link: parse(link, raw) for link, raw in raws.items()}
+    wall = time.time_ns()
+    out = []
+    for i in range(n):
+        m = (i * 7919) % modules
+        link = links[m % 3]
+        env = Envelope.of(frames[link], src=f"m{m}.comm", dst="*", sim_time_ns=i * 3_333, wall_time_ns=wall + i,
+                          seq=i // modules)
+        out.append((f"hexbot/{fleet}/frame/{link.value}/m{m}.comm", _envelope_json(env)))
+    return out
+
+
+def _count_back(paths) -> Counter:
+    """Messages per kind of channel in the files, read with the mcap reader."""
+    got: Counter = Counter()
+    for path in paths:
+        with open(path, "rb") as f:
+            for _, channel, _ in make_reader(f).iter_messages(log_time_order=False):
+                got[channel.topic.split("/", 1)[0]] += 1
+    return got
+
+
+def _batches_to_recorder(path, items, batch: int) -> float:
+    """Frames/s from the first put to the closed file, everything in this process."""
+    clock = VirtualClock()
+    bus = Bus(clock, "bench", options=SessionOptions(isolated=True))
+    rec = Recorder(path, fleet="bench")
+    rec.attach(bus)
+    try:
+        t0 = time.perf_counter()
+        if batch == 1:
+            for key, data in items:
+                bus.put(key, data)
+            clock.drain()
+        else:
+            for i in range(0, len(items), batch):
+                bus.put_batch(items[i:i + batch])
+                clock.drain()  # a fleet's window ends: what it put is handled
+        tally = rec.close()
+        dt = time.perf_counter() - t0
+    finally:
+        bus.close()
+    assert tally.frames == len(items)
+    return len(items) / dt
+
+
+def test_put_batch_to_recorder_rate(tmp_path):
+    n = 300_000
+    items = _fleet_frames("bench", n)
+    rate = _batches_to_recorder(tmp_path / "b.mcap", items, BATCH)
+    got = _count_back([tmp_path / "b.mcap"])
+    topics = len({k for k, _ in items})
+    _report(f"put_batch ({BATCH} a batch, {topics} topics) -> Recorder -> closed MCAP", rate, "frames/s", BATCH_TARGET)
+    print(f"[bench] read back: {got['frame']} frames, {got['foxglove']} Foxglove lines; lost {n - got['frame']}")
+    print(f"[bench] put_batch {'meets' if rate >= BATCH_TARGET else 'MISSES'} the target")
+    assert got["frame"] == n, f"lost {n - got['frame']} frames"
+    assert got["foxglove"] == n
+    one = _batches_to_recorder(tmp_path / "one.mcap", items[:100_000], 1)
+    print(f"[bench] the same frames put one by one (Bus.put): {one:,.0f} frames/s")
+
+
+def test_put_batch_to_a_recorder_in_another_process(tmp_path):
+    """``hexbench record`` in its own process, listening; this process puts the batches over
+    zenoh. Timed from the first batch to the recorder's exit, less its quiet wait (QUIET_S: told to
+    stop, it keeps taking samples until none came for that long)."""
+    from bus.session import free_port
+    from hexbench.record import QUIET_S
+
+    n = 300_000
+    fleet = f"benchrec{os.getpid()}"
+    items = _fleet_frames(fleet, n)
+    port = free_port()
+    out = tmp_path / "remote.mcap"
+    proc = subprocess.Popen([sys.executable, "-m", "hexbench", "record", "--listen", f"tcp/127.0.0.1:{port}",
+                             "--fleet", fleet, "--out", str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    bus = Bus(WallClock(), fleet, options=SessionOptions(connect=[f"tcp/127.0.0.1:{port}"]))
+    try:
+        assert proc.stdout.readline().startswith("recording "), proc.stderr.read()
+        assert bus.wait_remote(f"{BATCH_PREFIX}/{fleet}", timeout_s=30), "the recorder never subscribed"
+        t0 = time.perf_counter()
+        for i in range(0, n, BATCH):
+            bus.put_batch(items[i:i + BATCH])
+        t_put = time.perf_counter() - t0
+        bus.close()  # returns once the recorder's process holds every batch (the flush barrier)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=300)
+        dt = time.perf_counter() - t0 - QUIET_S
+    finally:
+        bus.close()
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    got = _count_back([out])
+    rate = got["frame"] / dt
+    _report(f"put_batch over zenoh -> hexbench record (another process) -> closed MCAP", rate, "frames/s")
+    print(f"[bench] the publisher put {n} frames at {n / t_put:,.0f} frames/s; "
+          f"read back {got['frame']}, lost {n - got['frame']}")
+    assert got["frame"] == n, f"lost {n - got['frame']} frames; {err}"
 
 
 def test_replay_speed(tmp_path):
