@@ -195,8 +195,17 @@ class _Hub:
         except ValueError as exc:
             self._bad_batch(sender, key, data, exc)
             return
-        groups: dict[Subscription, list[tuple[str, bytes]]] = {}
         control = self.control
+        routes = list(map(self.cache.get, (k for k, _ in items)))
+        if not control and None not in routes:
+            distinct = set(routes)
+            if all(sub.batch for subs in distinct for sub in subs):  # batch handlers only: whole
+                for sub in sorted({sub for subs in distinct for sub in subs}, key=lambda s: s.index):
+                    mine = items if all(sub in subs for subs in distinct) else \
+                        [item for item, subs in zip(items, routes) if sub in subs]
+                    sub.clock.post_foreign(sender, _deliver_foreign_batch, sub, mine)
+                return
+        groups: dict[Subscription, list[tuple[str, bytes]]] = {}
         matches = self.matches
         for k, payload in items:
             if control and self._control(sender, k, payload, groups):

@@ -36,16 +36,21 @@ typedef struct {
     int64_t cap, count;
 } table_t;
 
-static uint64_t fnv(const uint8_t *p, int64_t n, uint64_t h) {
-    for (int64_t i = 0; i < n; i++) {
-        h ^= p[i];
-        h *= 1099511628211ULL;
+static uint64_t mix(const uint8_t *p, int64_t n, uint64_t h) { /* eight bytes at a time */
+    for (; n >= 8; p += 8, n -= 8) {
+        uint64_t w;
+        memcpy(&w, p, 8);
+        h = (h ^ w) * 0x9E3779B97F4A7C15ULL;
+        h ^= h >> 29;
     }
-    return h;
+    uint64_t w = 0;
+    memcpy(&w, p, (size_t)n);
+    h = (h ^ w ^ ((uint64_t)n << 56)) * 0x9E3779B97F4A7C15ULL;
+    return h ^ (h >> 32);
 }
 
 static uint64_t key_hash(const uint8_t *head, int32_t hl, const uint8_t *kind, int32_t kl) {
-    return fnv(kind, kl, fnv(head, hl, 14695981039346656037ULL) ^ (uint64_t)hl);
+    return mix(kind, kl, mix(head, hl, 0x243F6A8885A308D3ULL));
 }
 
 table_t *fb_table_new(void) {
@@ -150,12 +155,12 @@ typedef struct {
     int64_t head_at, head_len, kind_at, kind_len, log_time;
 } batch_t;
 
-static int lit(const uint8_t *p, int64_t n, int64_t *i, const char *s) {
-    size_t k = strlen(s);
+static int lit_n(const uint8_t *p, int64_t n, int64_t *i, const char *s, size_t k) {
     if (*i + (int64_t)k > n || memcmp(p + *i, s, k) != 0) return 0;
     *i += (int64_t)k;
     return 1;
 }
+#define lit(p, n, i, s) lit_n(p, n, i, s, sizeof(s) - 1)
 
 static int str_body(const uint8_t *p, int64_t n, int64_t *i) { /* [^"\\]* then the closing quote */
     while (*i < n && p[*i] != '"') {
