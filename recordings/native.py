@@ -16,6 +16,7 @@ is None and the recorder takes its pure-Python path, record for record the same.
 from __future__ import annotations
 
 import ctypes
+import fcntl
 import os
 import subprocess
 import threading
@@ -45,16 +46,29 @@ class _Batch(ctypes.Structure):
                 ("log_time", _i64)]
 
 
+def _build() -> None:
+    """``make`` the library if it is missing or older than its source, one process at a time
+    (pytest's workers start together); in a read-only install, use what is there."""
+    source = HERE / "framebatch.c"
+    try:
+        LIB_PATH.parent.mkdir(exist_ok=True)
+        lock = open(LIB_PATH.parent / ".lock", "w")
+    except OSError:
+        return
+    with lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if source.exists() and (not LIB_PATH.exists() or source.stat().st_mtime > LIB_PATH.stat().st_mtime):
+            subprocess.run(["make", "-s", "-C", str(HERE)], check=True, capture_output=True, timeout=120)
+
+
 def _load() -> Any:
     if os.environ.get("HEXBENCH_NATIVE", "1") == "0":
         return None
-    source = HERE / "framebatch.c"
     try:
-        if source.exists() and (not LIB_PATH.exists() or source.stat().st_mtime > LIB_PATH.stat().st_mtime):
-            subprocess.run(["make", "-s", "-C", str(HERE)], check=True, capture_output=True, timeout=120)
+        _build()
         lib = ctypes.CDLL(str(LIB_PATH))
     except (OSError, subprocess.SubprocessError):
-        return None  # no compiler, no make: the pure-Python path
+        return None  # no compiler, no make, no library: the pure-Python path
     lib.fb_table_new.restype = _p
     lib.fb_table_free.argtypes = [_p]
     lib.fb_table_put.argtypes = [_p, ctypes.c_char_p, _i32, ctypes.c_char_p, _i32, ctypes.c_char_p, _i32]
