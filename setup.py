@@ -1,4 +1,5 @@
-"""The C firmware's host libraries go into the wheel (``bus/_firmware/``): a non-editable
+"""The C firmware's host libraries go into the wheel (``bus/_firmware/``), with the fleet core
+that runs them (``module_sim/core/build/``): a non-editable
 install (pip, pipx, a CI image) has no checkout beside it, and ``--program firmware`` runs
 them (module_sim/firmware.py). They need only a C compiler, not the AVR toolchain; without
 one the install goes on and ``--program firmware`` says what is missing. Everything else is
@@ -14,6 +15,7 @@ from setuptools.command.build_py import build_py
 
 HERE = Path(__file__).resolve().parent
 LIBS = [f"libhexbot-{board}-{tag}.so" for board in ("comm", "control") for tag in ("v2", "thesis")]
+CORE = "libhexcore.so"
 
 
 class BuildPyWithFirmware(build_py):
@@ -33,6 +35,11 @@ class BuildPyWithFirmware(build_py):
         dest.mkdir(parents=True, exist_ok=True)
         for lib in LIBS:
             shutil.copy2(HERE / "firmware" / "build" / lib, dest / lib)
+        # the fleet core (module_sim/core), which loads those libraries
+        subprocess.run(["make", "-s", "-C", str(HERE / "module_sim" / "core")], check=True)
+        core = Path(self.build_lib) / "module_sim" / "core" / "build"
+        core.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(HERE / "module_sim" / "core" / "build" / CORE, core / CORE)
 
 
 class BinaryDistribution(Distribution):

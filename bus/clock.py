@@ -138,9 +138,25 @@ class VirtualClock(Clock):
         super().__init__()
         self._now = 0
         self.events_run = 0
+        #: the ``until_ns`` of the run in progress (None: none), for an engine that runs ahead
+        #: of the timers in windows (module_sim.core): it must not pass it
+        self.until_ns: int | None = None
 
     def now_ns(self) -> int:
         return self._now
+
+    def next_due_ns(self) -> int | None:
+        """When the next timer is due (None: no timer): how far an engine's window may run."""
+        heap = self._heap
+        while heap and heap[0][2].cancelled:
+            heapq.heappop(heap)
+        return heap[0][0] if heap else None
+
+    def advance_to(self, t_ns: int) -> None:
+        """Move time on to ``t_ns`` inside a timer: an engine that ran a window of events up
+        to there (never past :meth:`next_due_ns` or the run's ``until_ns``)."""
+        if t_ns > self._now:
+            self._now = t_ns
 
     def call_at(self, t_ns: int, fn: Callable[..., Any], *args: Any) -> Timer:
         # Only the clock thread schedules (other threads ``post``), and nobody waits for a
@@ -169,6 +185,13 @@ class VirtualClock(Clock):
 
     def run(self, *, until_ns: int | None = None, until: Callable[[], bool] | None = None,
             timeout_s: float | None = None) -> None:
+        outer, self.until_ns = self.until_ns, until_ns
+        try:
+            self._run(until_ns, until, timeout_s)
+        finally:
+            self.until_ns = outer
+
+    def _run(self, until_ns: int | None, until: Callable[[], bool] | None, timeout_s: float | None) -> None:
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         self._stopped = False
         heap = self._heap

@@ -45,6 +45,7 @@ class Framer:
         self._at = 0
         self._first = _first_byte_table(self.link)
         self._first1 = _FIRST1[self.link]
+        self._known = _KNOWN.setdefault(self.link, {})  # shared by the framers of a link
 
     def feed(self, data: bytes | bytearray | int, t_ns: int | list[int] = 0) -> list[Timed]:
         """Add bytes (with one time for all, or one per byte) and return completed frames."""
@@ -72,8 +73,12 @@ class Framer:
             cands, (best_len, best_tpl) = self._alive, self._best
             whole = bytes(buf) + bytes(data)
         else:
-            cands, best_len, best_tpl = self._first[data[0]], 0, None
+            # from an empty buffer the outcome depends on the bytes alone: most writes repeat
             whole = bytes(data)
+            known = self._known.get(whole)
+            if known is not None:
+                return self._replay(known, whole, times, out)
+            cands, best_len, best_tpl = self._first[data[0]], 0, None
         n_all = len(whole)
         still, full = [], False
         for pat, tpl in cands:
@@ -88,7 +93,14 @@ class Framer:
         # Byte by byte, a frame or noise is emitted at the first length where no template
         # still needs more bytes; a template alive at the end was alive at every length before.
         if not still and not full:
+            if not buf:
+                self._remember(whole, (0, None, None))
             return False
+        if not buf:  # the outcome of these bytes from an empty buffer, kept
+            outcome = (2, still, (best_len, best_tpl)) if still else \
+                (1, frame_from_template(self.link, best_tpl, whole), None)
+            self._remember(whole, outcome)
+            return self._replay(outcome, whole, times, out)
         buf += data
         self._times += times
         if still:
@@ -100,6 +112,27 @@ class Framer:
                          self._times[-1]))
         buf.clear()
         self._times.clear()
+        self._need = 1
+        return True
+
+    def _remember(self, whole: bytes, outcome: tuple) -> None:
+        if len(self._known) >= _KNOWN_MAX:
+            self._known.clear()
+        self._known[whole] = outcome
+
+    def _replay(self, outcome: tuple, whole: bytes, times: list[int], out: list[Timed]) -> bool:
+        """What ``_chunk`` does with ``whole`` from an empty buffer, as it did the first time."""
+        kind, a, b = outcome
+        if kind == 0:
+            return False
+        if kind == 2:  # a frame may still complete: wait for more
+            self._buf += whole
+            self._times += times
+            self._alive, self._best, self._at, self._need = a, b, len(whole), len(whole) + 1
+            return True
+        self._alive = None
+        self._noise_emit(out)
+        out.append(Timed(a, times[0], times[-1]))  # frames are immutable: one serves every time
         self._need = 1
         return True
 
@@ -182,6 +215,9 @@ class Framer:
             self._noise_t.clear()
 
 
+#: per link: what a chunk fed to an empty framer gives (``Framer._replay``); bounded
+_KNOWN: dict[Link, dict[bytes, tuple]] = {}
+_KNOWN_MAX = 1 << 14
 _FIRST: dict[Link, list[tuple]] = {}
 _FIRST1: dict[Link, list[tuple]] = {}
 

@@ -32,7 +32,7 @@ _LIMIT = (SOLENOID_ON_LIMIT_TICKS, MAGNET_ON_LIMIT_TICKS, MAGNET_ON_LIMIT_TICKS)
 _COILS: tuple[tuple[int, int, Pin], ...] = tuple(
     (g, s, table[s]) for g, table in enumerate((JOINT, MAGNET_POS, MAGNET_NEG)) for s in range(1, 7))
 #: The port bits an actuator report covers: solenoids and magnet relays (Table 3-3).
-_ACTUATOR_MASK = port_masks([pin for _, _, pin in _COILS])
+COIL_MASK = port_masks([pin for _, _, pin in _COILS])
 
 
 def _keep_mask(port: str) -> int:
@@ -89,7 +89,7 @@ class ControlBoard(Mcu):
     def _write(self, port: str, value: int) -> None:
         changed = self.port[port] ^ value
         super()._write(port, value)
-        if not changed & _ACTUATOR_MASK.get(port, 0):
+        if not changed & COIL_MASK.get(port, 0):
             return
         if self._reporting and not self._report_due:
             self._report_due = True  # one report for all the bits a step changes at once

@@ -111,6 +111,18 @@ class Program:
         return cls._loaded[key]
 
 
+def input_pins(mcu: Mcu, switches: list[bool] | None) -> bytes:
+    """The levels on ``mcu``'s input pins, PORTA..PORTE: what it reads from its DIP
+    switches, and the optical switches of a comm board (``switches``: neighbours on body
+    sides 1..6) on the pins of :data:`bus.pins.OPTICAL_SWITCH`."""
+    pins = [mcu.pin_in[letter] for letter in PORTS]
+    if switches is not None:
+        levels = switch_levels(switches)
+        for k, letter in enumerate(PORTS):
+            pins[k] = pins[k] & ~_SWITCH_BITS[letter] & 0xFF | levels.get(letter, 0)
+    return bytes(pins)
+
+
 class FirmwareDriver:
     """Runs ``program`` as ``mcu``'s program. ``switches()`` gives the optical switches (comm
     board); they are read on the pins of :data:`bus.pins.OPTICAL_SWITCH`."""
@@ -140,15 +152,8 @@ class FirmwareDriver:
     def refresh_pins(self) -> None:
         """Hand the program its input pins (DIP switches, optical switches): at power-up and
         whenever the module's switches change (VirtualModule calls it)."""
-        pin_in = self.mcu.pin_in
-        pins = self._pins
-        for k, letter in enumerate(PORTS):
-            pins[k] = pin_in[letter]
-        if self.switches is not None:
-            levels = switch_levels(self.switches())
-            for k, letter in enumerate(PORTS):
-                pins[k] = pins[k] & ~_SWITCH_BITS[letter] | levels.get(letter, 0)
-        self.program.set_pins(self._state, pins)
+        self._pins[:] = input_pins(self.mcu, None if self.switches is None else self.switches())
+        self.program.set_pins(self._state, self._pins)
 
     def step(self) -> None:
         """Run the program until it waits; replay what it did; ask to be woken."""

@@ -6,8 +6,9 @@ from __future__ import annotations
 
 import gc
 import random
+from typing import TYPE_CHECKING
 
-from bus.clock import WallClock
+from bus.clock import VirtualClock, WallClock
 from bus.keys import module_endpoint
 from bus.scenario import Scenario
 from bus.timing import NS_PER_S, TICK_NS
@@ -17,6 +18,9 @@ from .module import VirtualModule
 from .profiles import profile
 from .shards import partition
 from .world import World
+
+if TYPE_CHECKING:
+    from .core import FleetCore
 
 
 #: Lateness past which a wall-clock fleet has fallen behind: two ticks (a tick is 9.984 ms).
@@ -73,10 +77,12 @@ class LagWatch:
 class Fleet:
     def __init__(self, bus: Bus, scenario: Scenario, *, profile_name: str | None = None,
                  mux_cut: bool = False, shard: tuple[int, int] | None = None,
-                 slack_ns: int = 0) -> None:
+                 slack_ns: int = 0, core: bool = True) -> None:
         """``shard=(k, n)``: only part ``k`` of ``n`` (:func:`module_sim.shards.partition`):
         its modules and its part of the world, for a fleet spread over processes on a
-        lockstep clock; ``slack_ns`` how late light from other shards may arrive."""
+        lockstep clock; ``slack_ns`` how late light from other shards may arrive.
+        ``core``: run the firmware-program modules and the IR medium in the fleet core
+        (:mod:`module_sim.core`) where it can (:meth:`core_refusal`); False: the Python path."""
         self.bus = bus
         self.scenario = scenario
         self.profile = profile(profile_name or scenario.profile)
@@ -90,15 +96,46 @@ class Fleet:
                                slack_ns=slack_ns)
         else:
             self.world = World(bus, scenario)
+        #: the fleet core (module_sim.core) running the firmware-program modules, if it can
+        self.core = self._core(bus, scenario, mux_cut) if core and shard is None else None
+        in_core = set(self.core.ids) if self.core is not None else set()
         self.modules = {m.id: VirtualModule(bus, m.id, self.profile, ir_baud=scenario.ir_baud,
-                                            mux_cut=mux_cut, program=scenario.program_of(m))
+                                            mux_cut=mux_cut, program=scenario.program_of(m),
+                                            core=self.core if m.id in in_core else None)
                         for m in scenario.modules if m.kind == "virtual" and m.id in mine}
+        if self.core is not None:
+            self.world.core = self.core
+            self.core.attach(self.world, [self.modules[i] for i in self.core.ids])
         # every virtual module, for the power-up phases: a shard draws them all, in order
         self._virtual = sorted(m.id for m in scenario.modules if m.kind == "virtual")
         self.twins = {m.id: VirtualModule(bus, m.id, self.profile, ir_baud=scenario.ir_baud,
                                           mux_cut=mux_cut, origin="twin")
                       for m in scenario.modules if m.kind in ("real", "firmware")}
         self.lag = LagWatch(bus) if isinstance(bus.clock, WallClock) else None
+
+    @staticmethod
+    def core_refusal(bus: Bus, scenario: Scenario, mux_cut: bool = False) -> str | None:
+        """Why the fleet core cannot run this fleet (None: it can): what only the Python
+        path has."""
+        if type(bus.clock) is not VirtualClock:  # a lockstep clock's windows are the shards'
+            return "the core runs on the virtual clock of one process"
+        if mux_cut:
+            return "a multiplexer that cuts bursts (--mux-cut) is modelled in Python only"
+        if scenario.bit_error_rate:
+            return "bit errors are drawn in Python only"
+        if not any(m.kind == "virtual" and scenario.program_of(m) == "firmware" for m in scenario.modules):
+            return "no virtual module runs the firmware program"
+        if any(m.kind == "virtual" and scenario.program_of(m) != "firmware" for m in scenario.modules):
+            return "some virtual modules run the Python programs"
+        return None
+
+    def _core(self, bus: Bus, scenario: Scenario, mux_cut: bool) -> "FleetCore | None":
+        if self.core_refusal(bus, scenario, mux_cut) is not None:
+            return None
+        from .core import FleetCore
+
+        ids = [m.id for m in scenario.modules if m.kind == "virtual"]
+        return FleetCore(bus, self.profile.name, ids, [module_endpoint(m.id) for m in scenario.modules])
 
     def power_up(self, stagger: bool = True, *, freeze_gc: bool = False) -> None:
         """Switch the base on: every module boots, each timer at its own (seeded) phase.

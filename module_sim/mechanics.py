@@ -37,6 +37,10 @@ class Body:
     fixed: bool = False
 
 
+#: how a virtual module's actuator record ends (bus.messages.Actuators, as VirtualModule writes it)
+_VIRTUAL_END = b'"origin":"virtual","type":"actuators"}'
+
+
 class Mechanics:
     """Physics and energy of a fleet, driven by the actuator records on the bus."""
 
@@ -65,6 +69,7 @@ class Mechanics:
         self.faults: dict[str, list[ActuatorFault]] = {}
         self.outcomes: list[Outcome] = []
         self._commanded: dict[str, tuple[list[bool], list[int]]] = {}
+        self._coils: dict[str, bytes] = {}  # key -> the coils' JSON of its last virtual record
         #: real modules whose board's reports differed from their twin's: moved by the board's
         self.board_bits: set[str] = set()
         self._board_said: dict[str, Actuators] = {}  # each board's latest report
@@ -102,6 +107,13 @@ class Mechanics:
 
     # -- actuators in --------------------------------------------------------------------------
     def _on_actuators(self, key: str, payload: bytes) -> None:
+        # Most records change LEDs or the multiplexer only: a virtual module's record whose
+        # coils read as in its last one is passed over before it is decoded.
+        i = payload.find(b'"joints_open":')
+        coils = payload[i:payload.find(b',"led_pos"', i)] if i > 0 else None
+        virtual = coils is not None and payload.endswith(_VIRTUAL_END)
+        if virtual and not self.lagged and self._coils.get(key) == coils:
+            return
         a = Actuators.from_json(payload)
         if a.module not in self.modules:
             return  # a module the world does not hold (another fleet's stand-in, say)
@@ -112,7 +124,12 @@ class Mechanics:
             self._board_said[a.module] = a
         if a.origin != "virtual" and (a.origin == "serial") != (a.module in self.board_bits):
             return
-        self._commanded[a.module] = (list(a.joints_open), list(a.magnets))
+        if virtual and a.origin == "virtual":
+            self._coils[key] = coils
+        bits = (list(a.joints_open), list(a.magnets))
+        if not self.lagged and self._commanded.get(a.module) == bits:
+            return  # the LEDs or the multiplexer changed: nothing a body or the meter follows
+        self._commanded[a.module] = bits
         if self.lagged:
             self._queue.append((a.sim_time_ns, a.module, list(a.joints_open), list(a.magnets)))
             return

@@ -8,7 +8,7 @@ state, and takes IR light from the bus (``ir/rx/m<id>``).
 from __future__ import annotations
 
 import json
-from typing import Callable
+from typing import Any, Callable
 
 from bus.codec import Link
 from bus.framer import Framer
@@ -31,7 +31,10 @@ class VirtualModule:
     ``"twin"`` for the world's shadow copy of a real module (:mod:`module_sim.twin`)."""
 
     def __init__(self, bus: Bus, module_id: int, profile: Profile, *, ir_baud: int = 300,
-                 mux_cut: bool = False, origin: str = "virtual", program: str = "model") -> None:
+                 mux_cut: bool = False, origin: str = "virtual", program: str = "model",
+                 core: Any = None) -> None:
+        """``core``: the :class:`module_sim.core.FleetCore` that runs this module's boards and
+        its light (firmware program only); this object keeps their ports, frames and records."""
         if program not in PROGRAMS:
             raise ValueError(f"program {program!r}: expected one of {', '.join(PROGRAMS)}")
         #: "model": the Python programs; "firmware": the C programs (module_sim.firmware)
@@ -57,16 +60,30 @@ class VirtualModule:
                               neighbours=lambda: self.switches)
         self.switches = [False] * 6  # optical switches, from the world
         self.overruns = 0
+        self.core = core
+        self.core_index = -1  # set by FleetCore.attach
+        # one framer per transceiver: the centre carries centre-link frames, sides side-link ones
+        self._ir_frames = {k: self._framer_publisher(Link.CENTRE if k == 0 else Link.SIDE,
+                                                     self.comm.name, "pc" if k == 0 else f"side{k}",
+                                                     channel=k) for k in range(7)}
+        self._actuators_pending = False
+        self._actuators_ns = 0
+        self._actuators_key = bus.keys.actuators(self.name)
+        self._record_head = '{"module":' + _dumps(self.name) + ',"sim_time_ns":'
+        bus.subscribe_json(bus.keys.switches(self.name), self._on_switches)
+        if core is not None:
+            # the core's wires, as it numbers them (core.c): UART0 up, down, debug, IR 0..6
+            self._core_wires = [self._framer_publisher(Link.UART0_UP, self.ctrl.name, self.comm.name),
+                                self._framer_publisher(Link.UART0_DOWN, self.comm.name, self.ctrl.name),
+                                self._framer_publisher(Link.DEBUG, self.ctrl.name, "terminal")] + \
+                [self._ir_frames[k] for k in range(7)]
+            return
         # UART0: each board's TX is the other's RX
         self._wire(self.ctrl.uart0, self.comm.uart0, Link.UART0_UP, self.comm.name)
         self._wire(self.comm.uart0, self.ctrl.uart0, Link.UART0_DOWN, self.ctrl.name)
         self._sniff(self.ctrl.uart1, Link.DEBUG, self.ctrl.name, "terminal")
         # IR: bursts out on the bus, light in from the world's medium
         self._ir_out = IrTransmitter(bus.put, bus.keys.ir_tx(self.comm.name), self.comm.name)
-        # one framer per transceiver: the centre carries centre-link frames, sides side-link ones
-        self._ir_frames = {k: self._framer_publisher(Link.CENTRE if k == 0 else Link.SIDE,
-                                                     self.comm.name, "pc" if k == 0 else f"side{k}",
-                                                     channel=k) for k in range(7)}
         self.comm.uart1.on_tx = self._ir_tx
         # bursts still on the air: [burst, transceiver, timer of its end]; the multiplexer may
         # move the rest of one to another transceiver (docs/protocol.md, emulation notes)
@@ -77,13 +94,12 @@ class VirtualModule:
             board.on_ports = self._ports_changed
             for uart in (board.uart0, board.uart1):
                 uart.on_overrun = self._overrun(board, uart)
-        self._actuators_pending = False
-        self._actuators_ns = 0
-        self._actuators_key = bus.keys.actuators(self.name)
         bus.subscribe(bus.keys.ir_rx(self.name), self._ir_in.on_message)
-        bus.subscribe_json(bus.keys.switches(self.name), self._on_switches)
 
     def power_up(self) -> None:
+        if self.core is not None:
+            self.core.power_up(self)
+            return
         if self.program == "firmware":
             from .firmware import FirmwareDriver, Program
 
@@ -113,13 +129,12 @@ class VirtualModule:
                           channel: int | None = None) -> Callable[[bytes, list[int], int], None]:
         """Frame the bytes a wire carries and publish each frame when its last byte ends."""
         framer = Framer(link)
-        bus = self.bus
+        at = self.bus.clock.call_at if self.core is None else self.core.queue_frame
 
         def publish(data: bytes, starts: list[int], byte_ns: int) -> None:
             for t in framer.feed(data, [s + byte_ns for s in starts]):
                 first = t.t_first_ns - byte_ns
-                bus.clock.call_at(t.t_last_ns, self._publish_frame, t.frame, src, dst, t.t_last_ns,
-                                  first, channel)
+                at(t.t_last_ns, self._publish_frame, t.frame, src, dst, t.t_last_ns, first, channel)
         return publish
 
     def _publish_frame(self, frame, src, dst, t_last, first, channel) -> None:
@@ -190,8 +205,35 @@ class VirtualModule:
 
     def _on_switches(self, key: str, d: dict) -> None:
         self.switches = Switches.present_of(d)
-        if self.comm.driver is not None:  # the C firmware reads them on its pins
+        if self.core is not None:
+            self.core.set_pins(self)
+        elif self.comm.driver is not None:  # the C firmware reads them on its pins
             self.comm.driver.refresh_pins()
+
+    # -- the fleet core's outputs (module_sim.core) ------------------------------------------
+    def input_pins(self, mcu: Mcu) -> bytes:
+        """The levels on ``mcu``'s input pins: its DIP switches, the comm board's optical
+        switches (as :class:`module_sim.firmware.FirmwareDriver` hands them to the program)."""
+        from .firmware import input_pins
+
+        return input_pins(mcu, self.switches if mcu is self.comm else None)
+
+    def core_wire(self, wire: int, data: bytes, starts: list[int], byte_ns: int) -> None:
+        """Bytes the core put on one of this module's wires (numbered as in core.c)."""
+        self._core_wires[wire](data, starts, byte_ns)
+
+    def core_port(self, board: int, port: str, value: int) -> None:
+        """A port write of one of this module's programs in the core (its record is the
+        core's to publish: :meth:`publish_actuators`)."""
+        (self.comm if board else self.ctrl).port[port] = value
+
+    def core_overrun(self, t: int, board: int, uart: int, lost: int, where: dict) -> None:
+        """A UART of this module in the core overran at ``t`` (see :meth:`_overrun`)."""
+        mcu = self.comm if board else self.ctrl
+        u = mcu.uart1 if uart else mcu.uart0
+        u.overruns += 1
+        self.overruns += 1
+        self.bus.event(mcu.name, "uart-overrun", sim_time_ns=t, uart=u.name, lost=lost, **where)
 
     # -- state out -------------------------------------------------------------------------------
     def _overrun(self, board: Mcu, uart: Uart) -> Callable[[int], None]:
@@ -234,13 +276,24 @@ class VirtualModule:
 
     def _publish_actuators(self) -> None:
         self._actuators_pending = False
-        a = self.actuators(self._actuators_ns)
-        # ``a.to_json()`` byte for byte (same keys and order), without asdict's deep copies
-        self.bus.put(self._actuators_key, _dumps({
-            "module": a.module, "sim_time_ns": a.sim_time_ns, "joints_open": a.joints_open,
-            "magnets": a.magnets, "led_pos": a.led_pos, "led_neg": a.led_neg,
-            "led_joint": a.led_joint, "ir_channel": a.ir_channel, "ports": a.ports,
-            "origin": a.origin, "type": Actuators.TOPIC}).encode())
+        self.publish_actuators(self._actuators_ns)
+
+    def publish_actuators(self, sim_time_ns: int) -> None:
+        """Put the actuator record of the ports now, stamped ``sim_time_ns``."""
+        c, m = self.ctrl.port, self.comm.port
+        key = (c["A"], c["B"], c["C"], c["D"], c["E"], m["A"], m["B"], m["C"], m["D"], m["E"], self.origin)
+        tail = _RECORD_TAILS.get(key)
+        if tail is None:
+            a = self.actuators(0)
+            # ``a.to_json()`` byte for byte (same keys and order), without asdict's deep copies;
+            # all but the module and the time depends on the ports alone: kept per ports
+            tail = _RECORD_TAILS[key] = "," + _dumps({
+                "joints_open": a.joints_open, "magnets": a.magnets, "led_pos": a.led_pos,
+                "led_neg": a.led_neg, "led_joint": a.led_joint, "ir_channel": a.ir_channel,
+                "ports": a.ports, "origin": a.origin, "type": Actuators.TOPIC})[1:]
+        self.bus.put(self._actuators_key, f'{self._record_head}{sim_time_ns}{tail}'.encode())
 
 
 _dumps = json.JSONEncoder(separators=(",", ":")).encode
+#: the end of an actuator record (after its time) for each state of the ports
+_RECORD_TAILS: dict[tuple[int | str, ...], str] = {}

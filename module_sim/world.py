@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import random
+from typing import Any
 
 from bus.ir import Burst, cut_message, forwarded, garble_fixes
 from bus.keys import PC, WORLD, module_endpoint
@@ -58,6 +59,8 @@ class World:
         self.ber = scenario.bit_error_rate
         self._air: dict[tuple[str, int], Air] = {}  # receiver (dst, transceiver) -> bytes in flight
         self.collisions = 0
+        #: the module_sim.core.FleetCore that carries the light, if any (the Fleet sets it)
+        self.core: Any = None
         bus.subscribe(bus.keys.ir_tx_all, self._on_ir)
         bus.subscribe(bus.keys.world_sync, lambda k, p: self.start())
         bus.subscribe(bus.keys.world_confirm, self._on_confirm)
@@ -75,6 +78,8 @@ class World:
         del self._by_cell[b.cell]
         b.cell, b.orientation = cell, orientation % 6
         self._by_cell[cell] = b
+        if self.core is not None:
+            self.core.routes_changed()
         if b.module in self.own:
             self._publish_pose(b)
         self.publish_switches()
@@ -158,6 +163,10 @@ class World:
 
     def _on_ir(self, key: str, payload: bytes) -> None:
         d = json.loads(payload)
+        if self.core is not None:  # the core's medium carries all light (no ber, no mux cut)
+            if d.get("type") == "burst":
+                self.core.put_light(d, self._receivers(d["src"], d["transceiver"]))
+            return
         if d.get("type") == "cut":
             # The transmitter's multiplexer switched mid-burst: on the old transceiver the rest of
             # the burst never comes, and the byte being sent is garbled (docs/protocol.md).

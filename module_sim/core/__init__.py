@@ -1,0 +1,345 @@
+"""The fleet core: the virtual modules' boards and the world's IR medium in one compiled loop.
+
+:class:`FleetCore` runs every firmware-program virtual module of a fleet (both boards, the
+UART0 line between them, the multiplexer) and all IR light (core.c). Python enters it once
+per *window* on the virtual clock: a window runs every core event before the next Python
+timer and ends early, at the end of an instant, when something outside must act:
+
+* a coil changed (a solenoid or magnet bit of a control board's port): the module's actuator
+  record goes out now, for the mechanics;
+* a byte reached a receiver outside the core (the PC's, a twin's): it goes out on
+  ``ir/rx/<dst>`` now, and that receiver delivers it at once.
+
+What else the window made comes out in bulk at its end: the records of other port changes
+(LEDs, the multiplexer: nothing the mechanics acts on) and UART overruns, each stamped with its
+instant;
+every byte on every wire is framed
+and published as frames with their own times, in the order their last bytes end (a frame is
+published once the window has passed its end, as a Python module's is at its end); collisions
+are ``event/world`` samples with the time they happened. Light from outside the core (the PC,
+twins) enters the same medium (:meth:`put_light`), so the IR medium exists once.
+
+The geometry stays in Python: the world tells the core which receiver each transceiver's
+light reaches (:meth:`routes_changed`), recomputed when a body moves.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import heapq
+import itertools
+import subprocess
+import threading
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from bus.cheader import FirmwareError, build_path
+from bus.ir import Burst
+from bus.keys import PC, WORLD, module_endpoint
+from bus.pins import IR_SEL_A, PORTS, ir_selected
+from bus.transport import Bus
+
+from ..control_board import COIL_MASK
+from ..firmware import Program
+
+if TYPE_CHECKING:
+    from ..module import VirtualModule
+    from ..world import World
+
+HERE = Path(__file__).resolve().parent
+LIB = HERE / "build" / "libhexcore.so"
+#: The longest window with no Python timer to stop it (a run's ``until`` is checked between).
+MAX_WINDOW_NS = 100_000_000
+_NO_TIME = 2**64 - 1
+_OUT_TX, _OUT_PORT, _OUT_RX, _OUT_OVERRUN, _OUT_COLLISION = 1, 2, 3, 4, 5
+#: out_t of core.c
+_OUT = np.dtype([("t", "<u8"), ("aux", "<u8"), ("kind", "<u4"), ("m", "<u4"), ("a", "<i4"),
+                 ("b", "<i4"), ("n", "<i4"), ("off", "<u4"), ("off2", "<u4"), ("n2", "<u4")])
+#: external sources beyond the core's modules (the PC, twins, Python-program modules)
+_MAX_EXTERNAL_SRCS = 4096
+_lock = threading.Lock()
+
+
+def _library() -> ctypes.CDLL:
+    """libhexcore.so, built with ``make -C module_sim/core`` when missing or older than its
+    sources."""
+    with _lock:
+        sources = [HERE / "core.c", HERE / "Makefile"]
+        header = HERE.parent.parent / "firmware" / "host" / "hexbot_host.h"
+        if header.exists():
+            sources.append(header)
+        stale = not LIB.exists() or any(s.exists() and s.stat().st_mtime > LIB.stat().st_mtime
+                                        for s in sources)
+        if stale and (HERE / "core.c").exists():
+            try:
+                subprocess.run(["make", "-s", "-C", str(HERE)], check=True, capture_output=True, text=True)
+            except FileNotFoundError:
+                raise FirmwareError("the fleet core is built with make and a C compiler: "
+                                    "apt-get install build-essential") from None
+            except subprocess.CalledProcessError as exc:
+                last = (exc.stderr or exc.stdout or "").strip().splitlines()[-1:] or ["?"]
+                raise FirmwareError(f"make -C {HERE} failed: {last[0]}") from None
+        if not LIB.exists():
+            raise FirmwareError(f"the fleet core library {LIB} is missing (make -C module_sim/core)")
+        lib = ctypes.CDLL(str(LIB))
+    p, u32, u64, i32 = ctypes.c_void_p, ctypes.c_uint32, ctypes.c_uint64, ctypes.c_int32
+    lib.core_new.restype = p
+    lib.core_new.argtypes = [u32, u32, u32, ctypes.c_char_p, ctypes.c_char_p, ctypes.c_char_p,
+                             ctypes.c_char_p, p, u32, ctypes.c_char_p]
+    lib.core_error.restype = ctypes.c_char_p
+    lib.core_error.argtypes = [p]
+    lib.core_free.argtypes = [p]
+    lib.core_set_route.argtypes = [p, u32, u32, i32]
+    lib.core_set_pins.argtypes = [p, u32, p]
+    lib.core_power_up.argtypes = [p, u32, u64, u32, u32, p]
+    lib.core_put_light.argtypes = [p, u64, i32, u32, p, p, p, u32, u32, p]
+    lib.core_next.restype = u64
+    lib.core_next.argtypes = [p]
+    lib.core_run.restype = u64
+    lib.core_run.argtypes = [p, u64]
+    for name in ("core_out", "core_out_bytes", "core_out_starts", "core_out_srcs", "core_ports"):
+        getattr(lib, name).restype = p
+    lib.core_out_n.restype = u32
+    lib.core_ports.argtypes = [p, u32]
+    lib.core_out_nbytes.restype = lib.core_out_nsrcs.restype = u32
+    for name in ("core_out_n", "core_out", "core_out_bytes", "core_out_starts", "core_out_srcs",
+                 "core_out_clear", "core_out_nbytes", "core_out_nsrcs"):
+        getattr(lib, name).argtypes = [p]
+    lib.core_side_heard.restype = u64
+    lib.core_side_heard.argtypes = [p, u32]
+    return lib
+
+
+def _view(addr: int, dtype: Any, n: int) -> np.ndarray:
+    if n == 0 or not addr:
+        return np.empty(0, dtype=dtype)
+    size = np.dtype(dtype).itemsize * n
+    return np.frombuffer((ctypes.c_char * size).from_address(addr), dtype=dtype, count=n)
+
+
+class FleetCore:
+    """The compiled loop of a fleet's firmware-program virtual modules ``ids`` (profile
+    ``profile``) and of its IR medium, on ``bus``'s virtual clock. ``bodies``: every module
+    of the world (those outside the core have their receivers outside it)."""
+
+    def __init__(self, bus: Bus, profile: str, ids: list[int], bodies: list[str]) -> None:
+        if getattr(bus.clock, "kind", "") != "virtual":
+            raise ValueError("the fleet core runs on the virtual clock")
+        self.bus = bus
+        self.lib = lib = _library()
+        # the same libraries as module_sim.firmware loads (one copy each in a process), and
+        # their state at power-up as it took it before any board ran
+        programs = [Program.get(board, profile) for board in ("control", "comm")]
+        paths = [str(build_path("lib", board, profile)).encode() for board in ("control", "comm")]
+        self.ids = list(ids)
+        self.index = {module_endpoint(i): k for k, i in enumerate(self.ids)}
+        n = len(self.ids)
+        others = [b for b in bodies if b not in self.index]
+        self.n_receivers = 7 * n + 7 * len(others) + 8
+        table = (ctypes.c_int8 * 256)(*[(-1 if (k := ir_selected(v)) is None else k) for v in range(256)])
+        self._h = lib.core_new(n, self.n_receivers, n + _MAX_EXTERNAL_SRCS, paths[0], paths[1],
+                               programs[0].power_on, programs[1].power_on, ctypes.addressof(table),
+                               PORTS.index(IR_SEL_A.port), bytes(COIL_MASK[p] for p in PORTS))
+        if not self._h:
+            raise MemoryError("the fleet core could not be made")
+        error = lib.core_error(self._h)
+        if error:
+            raise FirmwareError(error.decode())
+        self._external_rx: dict[tuple[str, int], int] = {}  # (endpoint, transceiver) -> receiver
+        self._rx_names: dict[int, tuple[str, int]] = {}
+        self._src: dict[str, int] = {}  # endpoint outside the core -> source index
+        self._src_names: dict[int, str] = {f"{module_endpoint(i)}.comm": k for k, i in enumerate(self.ids)}
+        self._src_names = {k: name for name, k in self._src_names.items()}
+        self.modules: list[VirtualModule] = []
+        self.world: World | None = None
+        self._timer: Any = None
+        self._timer_at = _NO_TIME
+        self._frames: list[tuple[int, int, Any, tuple]] = []  # (t_last, order, publish, args)
+        self._order = itertools.count()
+        self._burst = itertools.count()  # burst numbers of what goes out on ir/rx
+        self._light_cache: dict[tuple[str, int], Any] = {}
+        self.windows = 0
+
+    # -- wiring ------------------------------------------------------------------------------
+    def attach(self, world: "World", modules: list["VirtualModule"]) -> None:
+        """The world whose geometry routes the light; the Python shells of the core's modules
+        (in the order of ``ids``): their ports, framers and records."""
+        self.world = world
+        self.modules = modules
+        for k, m in enumerate(modules):
+            m.core_index = k
+        self.routes_changed()
+
+    def receiver(self, dst: str, transceiver: int) -> int:
+        """The core's index of a receiving transceiver (inside the core or outside)."""
+        k = self.index.get(dst)
+        if k is not None:
+            return 7 * k + transceiver
+        key = (dst, transceiver)
+        r = self._external_rx.get(key)
+        if r is None:
+            r = 7 * len(self.ids) + len(self._external_rx)
+            if r >= self.n_receivers:
+                raise ValueError(f"the fleet core has no room for receiver {dst}:{transceiver}")
+            self._external_rx[key] = r
+            self._rx_names[r] = key
+        return r
+
+    def _source(self, src: str) -> int:
+        s = self._src.get(src)
+        if s is None:
+            s = self._src[src] = len(self.ids) + len(self._src)
+            if s >= len(self.ids) + _MAX_EXTERNAL_SRCS:
+                raise ValueError(f"the fleet core has no room for light from {src}")
+            self._src_names[s] = src
+        return s
+
+    def routes_changed(self) -> None:
+        """Where each core module's light goes, from the world's geometry (after a move)."""
+        world = self.world
+        assert world is not None
+        set_route = self.lib.core_set_route
+        for k, ident in enumerate(self.ids):
+            src = f"{module_endpoint(ident)}.comm"
+            for t in range(7):
+                out = world._receivers(src, t)
+                set_route(self._h, k, t, self.receiver(*out[0]) if out else -1)
+        self._light_cache.clear()
+
+    # -- what Python does to the core ---------------------------------------------------------
+    def power_up(self, module: "VirtualModule") -> None:
+        """Both boards of ``module`` power up now (FirmwareDriver.power_up, in the core)."""
+        now = self.bus.clock.now_ns()
+        k = module.core_index
+        for b, mcu in ((2 * k, module.ctrl), (2 * k + 1, module.comm)):
+            mcu._boot_ns = now
+            pins = (ctypes.c_uint8 * 5)(*module.input_pins(mcu))
+            self.lib.core_power_up(self._h, b, now, mcu.uart0.byte_ns, mcu.uart1.byte_ns, ctypes.addressof(pins))
+        self._take_outputs()
+        self._kick()
+
+    def set_pins(self, module: "VirtualModule") -> None:
+        pins = (ctypes.c_uint8 * 5)(*module.input_pins(module.comm))
+        self.lib.core_set_pins(self._h, 2 * module.core_index + 1, ctypes.addressof(pins))
+
+    def put_light(self, d: dict[str, Any], receivers: list[tuple[str, int]]) -> None:
+        """A burst from outside the core (an ``ir/tx`` sample) reaches ``receivers``."""
+        key = (d["src"], d["transceiver"])
+        cached = self._light_cache.get(key)
+        if cached is None or cached[0] != receivers:
+            idx = np.array([self.receiver(dst, t) for dst, t in receivers], dtype=np.int32)
+            cached = self._light_cache[key] = (receivers, idx)
+        idx = cached[1]
+        if not len(idx):
+            return
+        data = bytes.fromhex(d["data"])
+        starts = np.array(d["starts"], dtype=np.uint64)
+        corrupt = d.get("corrupt") or []
+        flags = bytes(1 if c else 0 for c in corrupt) if True in corrupt else None
+        self.lib.core_put_light(self._h, self.bus.clock.now_ns(), self._source(d["src"]), len(idx),
+                                idx.ctypes.data, data, starts.ctypes.data, len(data), d["byte_ns"], flags)
+        self._take_outputs()
+        self._kick()
+
+    def side_bytes_heard(self, module: "VirtualModule") -> int:
+        return self.lib.core_side_heard(self._h, module.core_index)
+
+    def queue_frame(self, t_last: int, publish: Any, *args: Any) -> None:
+        """A frame the core's wires made: published once the run reaches ``t_last``."""
+        heapq.heappush(self._frames, (t_last, next(self._order), publish, args))
+
+    # -- windows ----------------------------------------------------------------------------
+    def _kick(self) -> None:
+        """Book the next window at the core's next event (or the next frame due)."""
+        nxt = self.lib.core_next(self._h)
+        if self._frames and self._frames[0][0] < nxt:
+            nxt = self._frames[0][0]
+        if nxt >= self._timer_at:
+            return
+        if self._timer is not None:
+            self._timer.cancel()
+        self._timer_at = nxt
+        self._timer = self.bus.clock.call_at(nxt, self._window)
+
+    def _window(self) -> None:
+        self._timer, self._timer_at = None, _NO_TIME
+        clock = self.bus.clock
+        now = clock.now_ns()
+        limit = now + MAX_WINDOW_NS
+        nxt = clock.next_due_ns()
+        if nxt is not None and nxt < limit:
+            limit = nxt
+        if clock.until_ns is not None and clock.until_ns + 1 < limit:
+            limit = clock.until_ns + 1
+        reached = self.lib.core_run(self._h, max(limit, now + 1))
+        self.windows += 1
+        if reached > now:
+            clock.advance_to(reached)
+        self._take_outputs()
+        self._publish_frames(clock.now_ns())
+        self._kick()
+
+    def _publish_frames(self, now: int) -> None:
+        frames = self._frames
+        while frames and frames[0][0] <= now:
+            _, _, publish, args = heapq.heappop(frames)
+            publish(*args)
+
+    def _take_outputs(self) -> None:
+        lib, h = self.lib, self._h
+        n = lib.core_out_n(h)
+        error = lib.core_error(h)
+        if error:
+            raise FirmwareError(error.decode())
+        if not n:
+            return
+        out = _view(lib.core_out(h), _OUT, n).tolist()
+        nbytes = lib.core_out_nbytes(h)
+        raw = ctypes.string_at(lib.core_out_bytes(h), nbytes) if nbytes else b""
+        starts = _view(lib.core_out_starts(h), np.uint64, nbytes)
+        srcs = None
+        modules = self.modules
+        bus = self.bus
+        records: dict[Any, int] = {}  # module -> the instant of its ports' last change
+        for t, aux, kind, m, a, b, cnt, off, off2, n2 in out:
+            if kind == _OUT_TX:
+                modules[m].core_wire(a, raw[off:off + cnt], starts[off:off + cnt].tolist(), b)
+            elif kind == _OUT_PORT:
+                # one record per module and instant, with the ports after all that instant's writes
+                module = modules[m // 2]
+                last = records.get(module)
+                if last is not None and last != t:
+                    module.publish_actuators(last)
+                records[module] = t
+                module.core_port(m & 1, PORTS[a], b)
+            elif kind == _OUT_RX:
+                dst, rx = self._rx_names[m]
+                burst = Burst(self._src_names[cnt], next(self._burst), 0, bytes([a]), [aux],
+                              t - aux, dst, rx, [bool(b)])
+                bus.put(bus.keys.ir_rx(dst), burst.to_json())
+            elif kind == _OUT_OVERRUN:
+                # n: the transceiver of an IR byte (-1: none), -2: not the IR UART
+                modules[m // 2].core_overrun(t, m & 1, a, b,
+                                             {} if cnt == -2 else {"channel": None if cnt < 0 else cnt})
+            elif kind == _OUT_COLLISION:
+                if srcs is None:
+                    srcs = _view(lib.core_out_srcs(h), np.int32, lib.core_out_nsrcs(h)).tolist()
+                names = sorted(self._src_names[s] for s in srcs[off:off + cnt])
+                dst, rx = self._rx_names.get(m) or (module_endpoint(self.ids[m // 7]), m % 7)
+                assert self.world is not None
+                self.world.collisions += 1
+                bus.event(WORLD, "collision", sim_time_ns=t, receiver=dst, transceiver=rx,
+                          sources=names, received=raw[off2:off2 + n2].hex())
+        for module, t in records.items():
+            module.publish_actuators(t)
+        lib.core_out_clear(h)
+
+    def close(self) -> None:
+        if self._h:
+            self.lib.core_free(self._h)
+            self._h = None
+
+
+__all__ = ["FleetCore", "MAX_WINDOW_NS", "PC"]

@@ -1,0 +1,770 @@
+/* The fleet core: every virtual module's two boards, the UART0 line between them, the IR
+ * multiplexer and the world's IR medium, in one event loop over arrays (issue: fleet core).
+ *
+ * Python enters once per window (core_run): the loop runs every event before `until` in time
+ * order and stops early, at the end of an instant, when something outside must act (a coil
+ * changed: actuators for the mechanics; a byte reached a receiver outside the core: the PC's,
+ * a twin's). What the window produced waits in the output buffers (core_out_*),
+ * every byte on every wire with its start time, for module_sim.core to frame and publish.
+ *
+ * The boards run the robot's own program: the host build of firmware/ (firmware/host), one
+ * shared library per board kind, dlopen'ed here and stepped with each board's state block as
+ * module_sim.firmware does from Python. Geometry stays in Python: it gives each module's
+ * routes (which receiver the light of each transceiver reaches) and the multiplexer's table.
+ *
+ * The medium is module_sim/air.py's model, kept exactly (docs/physics.md): bytes in the air at
+ * a receiver are grouped by exact time span (a slot); a new byte that overlaps a slot holding
+ * another transmitter's bytes arrives as the AND of itself and them, and each of them becomes
+ * the AND of itself and the new byte. A slot keeps the values of its hits in order so that a
+ * member's value is its own AND every hit since it joined, read in O(8): a pile-up of n bytes
+ * costs O(n), not O(n^2). A receiver delivers a byte at its stop bit; of two garbled bytes
+ * overlapping on one line only the first to complete forms a byte (bus/ir.py, IrReceiver).
+ */
+#include <dlfcn.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "hexbot_host.h"
+
+#define NO_TIME UINT64_MAX
+#define RX_DEPTH 3 /* two in the FIFO and one in the receive shift register (module_sim/avr.py) */
+
+enum { EV_WAKE = 1, EV_RX0, EV_IRDONE };
+enum { OUT_TX = 1, OUT_PORT, OUT_RX, OUT_OVERRUN, OUT_COLLISION };
+/* wires of a module in OUT_TX: 0 UART0 up (ctrl->comm), 1 down, 2 debug, 3+k IR transceiver k */
+enum { W_UP = 0, W_DOWN = 1, W_DEBUG = 2, W_IR = 3 };
+
+typedef struct {
+    uint64_t t, seq;
+    uint32_t kind, a, b, pad;
+} ev_t;
+
+typedef struct {
+    void *lib;
+    size_t size;
+    void (*step)(void *, uint64_t);
+    void (*setup)(void *, uint64_t, uint32_t, uint32_t);
+    void (*set_pins)(void *, const uint8_t *);
+    hexbot_io_t *io;
+    hexbot_flush_fn *flush;
+    uint8_t *power_on;
+} prog_t;
+
+typedef struct {
+    uint64_t wake_at;
+    uint32_t wake_gen;
+    uint32_t byte_ns[2];
+    uint8_t rx[2][RX_DEPTH];
+    uint8_t rx_n[2];
+    uint8_t port[5];
+    uint8_t on;
+} board_t;
+
+typedef struct {
+    int32_t slot;  /* its slot, -1 when free */
+    int32_t src;
+    uint32_t join_hits;
+    uint8_t join_value, join_corrupt;
+    uint16_t pad;
+    int32_t next_free;
+} member_t;
+
+typedef struct {
+    uint64_t start, end;
+    int32_t first_src;
+    uint8_t multi;        /* members from two or more transmitters */
+    uint8_t and_join;     /* AND of the members' values when they joined */
+    uint8_t hits_and;     /* AND of every hit's value */
+    uint8_t pad;
+    uint32_t hits;
+    int32_t last_zero[8]; /* per bit: the last hit with that bit 0, -1 none */
+    int32_t *members;
+    uint32_t n_members, cap_members, alive;
+    int32_t receiver;
+    int32_t next_free;
+} slot_t;
+
+typedef struct {
+    int32_t *slots; /* in flight, sorted by (start, end) */
+    uint32_t n, cap;
+    uint64_t longest;
+    uint64_t line_busy; /* the end of the last byte delivered (IrReceiver._line_busy) */
+    uint8_t has_busy;
+} receiver_t;
+
+typedef struct {
+    uint64_t t, aux;
+    uint32_t kind, m;
+    int32_t a, b, n;
+    uint32_t off, off2, n2;
+} out_t;
+
+typedef struct {
+    prog_t prog[2]; /* 0 control, 1 comm */
+    uint32_t n_modules, n_receivers, n_srcs;
+    board_t *boards;
+    uint8_t *state[2];
+    int8_t mux_table[256];
+    int32_t *mux;            /* selected transceiver, -1: Y7 (unwired) */
+    uint64_t *mux_at;        /* when the multiplexer last moved */
+    int32_t *route;          /* n_modules x 7: receiver the light of transceiver k reaches, -1 none */
+    uint64_t *side_heard;
+    uint8_t ir_sel_port;
+    uint8_t coil_mask[5]; /* the control board's solenoid and magnet bits, per port */
+    /* events */
+    ev_t *heap;
+    uint32_t heap_n, heap_cap;
+    uint64_t seq;
+    uint64_t now;
+    /* medium */
+    receiver_t *rcv;
+    slot_t *slot_pool;
+    uint32_t slot_cap, slot_used;
+    int32_t slot_free;
+    member_t *mem_pool;
+    uint32_t mem_cap, mem_used;
+    int32_t mem_free;
+    uint32_t *src_mark;
+    uint32_t mark;
+    /* outputs of the window */
+    out_t *out;
+    uint32_t out_n, out_cap;
+    uint8_t *out_bytes;
+    uint64_t *out_starts;
+    uint32_t bytes_n, bytes_cap;
+    int32_t *out_srcs;
+    uint32_t srcs_n, srcs_cap;
+    int stop;
+    int stepping; /* the board whose step runs (hexbot_flush) */
+    char error[256];
+} core_t;
+
+static core_t *g_core; /* the core whose board is stepping: the library's flush hook needs it */
+
+#define GROW(ptr, n, cap, need)                                                                  \
+    do {                                                                                         \
+        if ((n) + (need) > (cap)) {                                                              \
+            uint32_t c_ = (cap) ? (cap) : 64;                                                    \
+            while (c_ < (n) + (need))                                                            \
+                c_ *= 2;                                                                         \
+            void *p_ = realloc((ptr), (size_t)c_ * sizeof *(ptr));                               \
+            if (!p_) {                                                                           \
+                fprintf(stderr, "hexbench core: out of memory\n");                               \
+                abort();                                                                         \
+            }                                                                                    \
+            (ptr) = p_;                                                                          \
+            (cap) = c_;                                                                          \
+        }                                                                                        \
+    } while (0)
+
+/* --- the event heap: (t, seq), seq in scheduling order as the Python clock's ties ---------- */
+static int ev_less(const ev_t *x, const ev_t *y)
+{
+    return x->t < y->t || (x->t == y->t && x->seq < y->seq);
+}
+
+static void push(core_t *c, uint64_t t, uint32_t kind, uint32_t a, uint32_t b)
+{
+    GROW(c->heap, c->heap_n, c->heap_cap, 1);
+    ev_t e = {t < c->now ? c->now : t, c->seq++, kind, a, b, 0};
+    uint32_t i = c->heap_n++;
+    while (i) {
+        uint32_t p = (i - 1) / 2;
+        if (!ev_less(&e, &c->heap[p]))
+            break;
+        c->heap[i] = c->heap[p];
+        i = p;
+    }
+    c->heap[i] = e;
+}
+
+static ev_t pop(core_t *c)
+{
+    ev_t top = c->heap[0];
+    ev_t last = c->heap[--c->heap_n];
+    uint32_t i = 0, n = c->heap_n;
+    for (;;) {
+        uint32_t l = 2 * i + 1, r = l + 1, m = i;
+        const ev_t *best = &last;
+        if (l < n && ev_less(&c->heap[l], best)) {
+            m = l;
+            best = &c->heap[l];
+        }
+        if (r < n && ev_less(&c->heap[r], best))
+            m = r;
+        if (m == i)
+            break;
+        c->heap[i] = c->heap[m];
+        i = m;
+    }
+    if (n)
+        c->heap[i] = last;
+    return top;
+}
+
+/* --- outputs -------------------------------------------------------------------------------- */
+static out_t *out_new(core_t *c, uint32_t kind, uint64_t t, uint32_t m)
+{
+    GROW(c->out, c->out_n, c->out_cap, 1);
+    out_t *o = &c->out[c->out_n++];
+    memset(o, 0, sizeof *o);
+    o->kind = kind;
+    o->t = t;
+    o->m = m;
+    return o;
+}
+
+static uint32_t out_put_bytes(core_t *c, const uint8_t *data, const uint64_t *starts, uint32_t n)
+{
+    if (c->bytes_n + n > c->bytes_cap) {
+        uint32_t cap = c->bytes_cap ? c->bytes_cap : 4096;
+        while (cap < c->bytes_n + n)
+            cap *= 2;
+        c->out_bytes = realloc(c->out_bytes, cap);
+        c->out_starts = realloc(c->out_starts, (size_t)cap * sizeof *c->out_starts);
+        if (!c->out_bytes || !c->out_starts)
+            abort();
+        c->bytes_cap = cap;
+    }
+    uint32_t off = c->bytes_n;
+    memcpy(c->out_bytes + off, data, n);
+    if (starts)
+        memcpy(c->out_starts + off, starts, (size_t)n * sizeof *starts);
+    else
+        memset(c->out_starts + off, 0, (size_t)n * sizeof *starts);
+    c->bytes_n += n;
+    return off;
+}
+
+/* --- the medium ------------------------------------------------------------------------------- */
+static int32_t slot_alloc(core_t *c)
+{
+    int32_t s;
+    if (c->slot_free >= 0) {
+        s = c->slot_free;
+        c->slot_free = c->slot_pool[s].next_free;
+    } else {
+        GROW(c->slot_pool, c->slot_used, c->slot_cap, 1);
+        s = (int32_t)c->slot_used++;
+        c->slot_pool[s].members = NULL;
+        c->slot_pool[s].cap_members = 0;
+    }
+    slot_t *sl = &c->slot_pool[s];
+    int32_t *keep = sl->members;
+    uint32_t keep_cap = sl->cap_members;
+    memset(sl, 0, sizeof *sl);
+    sl->members = keep;
+    sl->cap_members = keep_cap;
+    sl->first_src = -1;
+    sl->and_join = 0xFF;
+    sl->hits_and = 0xFF;
+    for (int k = 0; k < 8; k++)
+        sl->last_zero[k] = -1;
+    return s;
+}
+
+static int32_t mem_alloc(core_t *c)
+{
+    int32_t m;
+    if (c->mem_free >= 0) {
+        m = c->mem_free;
+        c->mem_free = c->mem_pool[m].next_free;
+    } else {
+        GROW(c->mem_pool, c->mem_used, c->mem_cap, 1);
+        m = (int32_t)c->mem_used++;
+    }
+    return m;
+}
+
+static uint8_t member_value(const core_t *c, const member_t *mb)
+{
+    const slot_t *sl = &c->slot_pool[mb->slot];
+    uint8_t v = mb->join_value;
+    for (int k = 0; k < 8; k++)
+        if (sl->last_zero[k] >= (int32_t)mb->join_hits)
+            v &= (uint8_t)~(1u << k);
+    return v;
+}
+
+/* first slot of r with start >= t (slots sorted by (start, end)) */
+static uint32_t slot_lower(const core_t *c, const receiver_t *r, uint64_t t, uint64_t end)
+{
+    uint32_t lo = 0, hi = r->n;
+    while (lo < hi) {
+        uint32_t mid = (lo + hi) / 2;
+        const slot_t *s = &c->slot_pool[r->slots[mid]];
+        if (s->start < t || (s->start == t && s->end < end))
+            lo = mid + 1;
+        else
+            hi = mid;
+    }
+    return lo;
+}
+
+/* A burst reaches receiver `ri`: collide with what is in the air (air.py Air.collide), then put
+ * its bytes in the air (Air.add) and book their deliveries. */
+static void medium_add(core_t *c, int32_t ri, int32_t src, const uint8_t *data, const uint64_t *starts,
+                       uint32_t n, uint32_t byte_ns, const uint8_t *corrupt_in)
+{
+    receiver_t *r = &c->rcv[ri];
+    uint8_t values[256], corrupt[256];
+    if (n > 256)
+        n = 256; /* a board's step writes at most 255 bytes a burst (hexbot_event_t.n) */
+    int any_hit = 0;
+    uint32_t first_src_off = c->srcs_n;
+    c->mark++;
+    for (uint32_t i = 0; i < n; i++) {
+        uint64_t start = starts[i], end = start + byte_ns;
+        uint8_t v = data[i], acc = v;
+        int hit = 0;
+        uint64_t from = start + 1 > r->longest ? start + 1 - r->longest : 0;
+        for (uint32_t j = slot_lower(c, r, from, 0); j < r->n; j++) {
+            slot_t *sl = &c->slot_pool[r->slots[j]];
+            if (sl->start >= end)
+                break;
+            if (sl->end <= start)
+                continue;
+            if (!sl->multi && (sl->first_src < 0 || sl->first_src == src))
+                continue; /* empty, or only this transmitter's own byte (one UART) */
+            hit = 1;
+            acc &= sl->and_join & sl->hits_and;
+            /* the slot's sources, for the collision event */
+            for (uint32_t k = 0; k < sl->n_members; k++) {
+                int32_t s = c->mem_pool[sl->members[k]].src;
+                if (c->src_mark[s] != c->mark) {
+                    c->src_mark[s] = c->mark;
+                    GROW(c->out_srcs, c->srcs_n, c->srcs_cap, 1);
+                    c->out_srcs[c->srcs_n++] = s;
+                }
+            }
+            for (int k = 0; k < 8; k++)
+                if (!(v >> k & 1))
+                    sl->last_zero[k] = (int32_t)sl->hits;
+            sl->hits++;
+            sl->hits_and &= v;
+        }
+        values[i] = hit ? acc : v;
+        corrupt[i] = (uint8_t)(hit || (corrupt_in && corrupt_in[i]));
+        any_hit |= hit;
+    }
+    if (any_hit) {
+        if (c->src_mark[src] != c->mark) {
+            GROW(c->out_srcs, c->srcs_n, c->srcs_cap, 1);
+            c->out_srcs[c->srcs_n++] = src;
+        }
+        out_t *o = out_new(c, OUT_COLLISION, c->now, (uint32_t)ri);
+        o->a = src;
+        o->off = first_src_off;
+        o->n = (int32_t)(c->srcs_n - first_src_off);
+        o->off2 = out_put_bytes(c, values, NULL, n);
+        o->n2 = n;
+    } else {
+        c->srcs_n = first_src_off;
+    }
+    if (byte_ns > r->longest)
+        r->longest = byte_ns;
+    for (uint32_t i = 0; i < n; i++) {
+        uint64_t start = starts[i], end = start + byte_ns;
+        uint32_t j = slot_lower(c, r, start, end);
+        int32_t si;
+        if (j < r->n && c->slot_pool[r->slots[j]].start == start && c->slot_pool[r->slots[j]].end == end) {
+            si = r->slots[j];
+        } else {
+            si = slot_alloc(c);
+            r = &c->rcv[ri];
+            c->slot_pool[si].start = start;
+            c->slot_pool[si].end = end;
+            c->slot_pool[si].receiver = ri;
+            GROW(r->slots, r->n, r->cap, 1);
+            memmove(r->slots + j + 1, r->slots + j, (size_t)(r->n - j) * sizeof *r->slots);
+            r->slots[j] = si;
+            r->n++;
+        }
+        int32_t mi = mem_alloc(c);
+        slot_t *sl = &c->slot_pool[si];
+        member_t *mb = &c->mem_pool[mi];
+        mb->slot = si;
+        mb->src = src;
+        mb->join_hits = sl->hits;
+        mb->join_value = values[i];
+        mb->join_corrupt = corrupt[i];
+        GROW(sl->members, sl->n_members, sl->cap_members, 1);
+        sl->members[sl->n_members++] = mi;
+        sl->alive++;
+        sl->and_join &= values[i];
+        if (sl->first_src < 0)
+            sl->first_src = src;
+        else if (sl->first_src != src)
+            sl->multi = 1;
+        push(c, end, EV_IRDONE, (uint32_t)ri, (uint32_t)mi);
+    }
+}
+
+static void uart_receive(core_t *c, uint32_t b, int u, uint8_t byte);
+
+/* A byte's stop bit at receiver ri (IrReceiver._complete, then VirtualModule._ir_rx). */
+static void ir_done(core_t *c, uint32_t ri, int32_t mi)
+{
+    member_t *mb = &c->mem_pool[mi];
+    int32_t si = mb->slot;
+    slot_t *sl = &c->slot_pool[si];
+    uint8_t value = member_value(c, mb);
+    int bad = mb->join_corrupt || sl->hits > mb->join_hits;
+    uint64_t start = sl->start;
+    int32_t src = mb->src;
+    mb->slot = -1;
+    mb->next_free = c->mem_free;
+    c->mem_free = mi;
+    if (--sl->alive == 0) { /* every member ends now: the slot leaves the air */
+        receiver_t *r = &c->rcv[ri];
+        uint32_t j = slot_lower(c, r, sl->start, sl->end);
+        while (j < r->n && r->slots[j] != si)
+            j++;
+        if (j < r->n) {
+            memmove(r->slots + j, r->slots + j + 1, (size_t)(r->n - j - 1) * sizeof *r->slots);
+            r->n--;
+        }
+        sl->n_members = 0;
+        sl->next_free = c->slot_free;
+        c->slot_free = si;
+    }
+    receiver_t *r = &c->rcv[ri];
+    /* two garbled bytes overlapping on one line are one byte: the first to complete carries it */
+    if (bad && r->has_busy && start < r->line_busy)
+        return;
+    r->line_busy = c->now;
+    r->has_busy = 1;
+    if (ri < 7 * c->n_modules) {
+        uint32_t m = ri / 7;
+        int32_t k = (int32_t)(ri % 7);
+        if (c->mux[m] == k && c->mux_at[m] <= start) {
+            if (k)
+                c->side_heard[m]++;
+            uart_receive(c, 2 * m + 1, 1, value);
+        }
+        return;
+    }
+    out_t *o = out_new(c, OUT_RX, c->now, ri);
+    o->a = value;
+    o->b = bad;
+    o->aux = start;
+    o->n = src;
+    c->stop = 1;
+}
+
+/* --- boards --------------------------------------------------------------------------------- */
+static void step_board(core_t *c, uint32_t b);
+
+static void replay(core_t *c, uint32_t b)
+{
+    prog_t *p = &c->prog[b & 1];
+    hexbot_io_t *io = p->io;
+    uint32_t m = b / 2;
+    board_t *bd = &c->boards[b];
+    for (uint32_t i = 0; i < io->n_events; i++) {
+        const hexbot_event_t *e = &io->events[i];
+        if (e->kind == HEXBOT_EV_PORT) {
+            uint8_t old = bd->port[e->a];
+            bd->port[e->a] = e->n;
+            if ((b & 1) && e->a == c->ir_sel_port) {
+                int32_t k = c->mux_table[e->n];
+                if (k != c->mux[m]) {
+                    c->mux[m] = k;
+                    c->mux_at[m] = c->now;
+                }
+            }
+            out_t *o = out_new(c, OUT_PORT, c->now, b);
+            o->a = e->a;
+            o->b = e->n;
+            if (!(b & 1) && ((old ^ e->n) & c->coil_mask[e->a]))
+                c->stop = 1; /* a coil: the mechanics acts on it now */
+            continue;
+        }
+        const uint8_t *data = io->bytes + e->offset;
+        const uint64_t *starts = io->starts + e->offset;
+        uint32_t n = e->n, byte_ns = bd->byte_ns[e->a];
+        int wire;
+        if (e->a == 0) { /* UART0: the other board hears each byte at its stop bit */
+            uint32_t other = b ^ 1;
+            for (uint32_t k = 0; k < n; k++)
+                push(c, starts[k] + byte_ns, EV_RX0, other, data[k]);
+            wire = (b & 1) ? W_DOWN : W_UP;
+        } else if (!(b & 1)) {
+            wire = W_DEBUG;
+        } else {
+            int32_t k = c->mux[m];
+            if (k < 0)
+                continue; /* channel Y7 is not wired: the light goes nowhere */
+            wire = W_IR + k;
+            int32_t ri = c->route[7 * m + k];
+            if (ri >= 0)
+                medium_add(c, ri, (int32_t)m, data, starts, n, byte_ns, NULL);
+        }
+        out_t *o = out_new(c, OUT_TX, c->now, m);
+        o->a = wire;
+        o->n = (int32_t)n;
+        o->off = out_put_bytes(c, data, starts, n);
+        o->b = (int32_t)byte_ns;
+    }
+    io->n_events = 0;
+    io->n_bytes = 0;
+}
+
+static void flushed(void)
+{
+    if (g_core && g_core->stepping >= 0)
+        replay(g_core, (uint32_t)g_core->stepping);
+}
+
+static void step_board(core_t *c, uint32_t b)
+{
+    board_t *bd = &c->boards[b];
+    prog_t *p = &c->prog[b & 1];
+    hexbot_io_t *io = p->io;
+    for (int u = 0; u < 2; u++) {
+        uint8_t n = bd->rx_n[u] < 4 ? bd->rx_n[u] : 4;
+        io->rx_n[u] = n;
+        memcpy(io->rx[u], bd->rx[u], n);
+    }
+    core_t *saved_core = g_core;
+    int saved_stepping = c->stepping;
+    hexbot_flush_fn saved = *p->flush;
+    g_core = c;
+    c->stepping = (int)b;
+    *p->flush = flushed;
+    p->step(c->state[b & 1] + (size_t)(b / 2) * p->size, c->now);
+    *p->flush = saved;
+    c->stepping = saved_stepping;
+    g_core = saved_core;
+    if (io->overflow)
+        snprintf(c->error, sizeof c->error, "board %u: the firmware's step lost %u events", b, io->overflow);
+    for (int u = 0; u < 2; u++) {
+        uint8_t used = io->rx_used[u];
+        if (used) {
+            memmove(bd->rx[u], bd->rx[u] + used, (size_t)(bd->rx_n[u] - used));
+            bd->rx_n[u] = (uint8_t)(bd->rx_n[u] - used);
+        }
+    }
+    uint64_t wake = io->wake;
+    replay(c, b);
+    if (wake != bd->wake_at) { /* a new wake-up time (an unchanged one stays booked) */
+        bd->wake_gen++;
+        if (wake)
+            push(c, wake, EV_WAKE, b, bd->wake_gen);
+        bd->wake_at = wake;
+    }
+}
+
+static void uart_receive(core_t *c, uint32_t b, int u, uint8_t byte)
+{
+    board_t *bd = &c->boards[b];
+    if (bd->rx_n[u] >= RX_DEPTH) { /* DOR: the byte waiting in the shift register is lost */
+        out_t *o = out_new(c, OUT_OVERRUN, c->now, b);
+        o->a = u;
+        o->b = bd->rx[u][RX_DEPTH - 1];
+        o->n = (b & 1) && u == 1 ? c->mux[b / 2] : -2;
+        bd->rx[u][RX_DEPTH - 1] = byte;
+        return;
+    }
+    bd->rx[u][bd->rx_n[u]++] = byte;
+    if (bd->on) /* before power-up a byte waits in the FIFO, as module_sim/avr.py's Uart */
+        step_board(c, b);
+}
+
+static void dispatch(core_t *c, const ev_t *e)
+{
+    switch (e->kind) {
+    case EV_WAKE: {
+        board_t *bd = &c->boards[e->a];
+        if (e->b != bd->wake_gen)
+            return; /* cancelled: the program asked for another time since */
+        bd->wake_at = 0;
+        step_board(c, e->a);
+        return;
+    }
+    case EV_RX0:
+        uart_receive(c, e->a, 0, (uint8_t)e->b);
+        return;
+    case EV_IRDONE:
+        ir_done(c, e->a, (int32_t)e->b);
+        return;
+    }
+}
+
+/* --- the API (module_sim/core/__init__.py) -------------------------------------------------- */
+static int load(core_t *c, int k, const char *path, const uint8_t *power_on)
+{
+    prog_t *p = &c->prog[k];
+    p->lib = dlopen(path, RTLD_NOW | RTLD_LOCAL);
+    if (!p->lib) {
+        snprintf(c->error, sizeof c->error, "cannot load %s: %s", path, dlerror());
+        return -1;
+    }
+    size_t (*size)(void) = (size_t(*)(void))dlsym(p->lib, "hexbot_state_size");
+    p->step = (void (*)(void *, uint64_t))dlsym(p->lib, "hexbot_step");
+    p->setup = (void (*)(void *, uint64_t, uint32_t, uint32_t))dlsym(p->lib, "hexbot_setup");
+    p->set_pins = (void (*)(void *, const uint8_t *))dlsym(p->lib, "hexbot_set_pins");
+    p->io = (hexbot_io_t *)dlsym(p->lib, "hexbot_io");
+    p->flush = (hexbot_flush_fn *)dlsym(p->lib, "hexbot_flush");
+    if (!size || !p->step || !p->setup || !p->set_pins || !p->io || !p->flush) {
+        snprintf(c->error, sizeof c->error, "%s is not a hexbot host library (make -C firmware host)", path);
+        return -1;
+    }
+    p->size = size();
+    /* the state at power-up comes from the one copy taken before any board ran (Python's
+     * module_sim.firmware.Program): the library's own block holds the last board stepped */
+    p->power_on = malloc(p->size ? p->size : 1);
+    memcpy(p->power_on, power_on, p->size);
+    return 0;
+}
+
+const char *core_error(core_t *c)
+{
+    return c->error;
+}
+
+core_t *core_new(uint32_t n_modules, uint32_t n_receivers, uint32_t n_srcs, const char *control_lib,
+                 const char *comm_lib, const uint8_t *control_power_on, const uint8_t *comm_power_on,
+                 const int8_t *mux_table, uint32_t ir_sel_port, const uint8_t coil_mask[5])
+{
+    core_t *c = calloc(1, sizeof *c);
+    if (!c)
+        return NULL;
+    c->n_modules = n_modules;
+    c->n_receivers = n_receivers;
+    c->n_srcs = n_srcs;
+    c->stepping = -1;
+    c->slot_free = c->mem_free = -1;
+    if (load(c, 0, control_lib, control_power_on) || load(c, 1, comm_lib, comm_power_on))
+        return c; /* core_error says why */
+    memcpy(c->mux_table, mux_table, 256);
+    memcpy(c->coil_mask, coil_mask, 5);
+    c->ir_sel_port = (uint8_t)ir_sel_port;
+    c->boards = calloc(2 * (size_t)n_modules + 1, sizeof *c->boards);
+    for (int k = 0; k < 2; k++) {
+        c->state[k] = malloc(c->prog[k].size * (size_t)n_modules + 1);
+        for (uint32_t m = 0; m < n_modules; m++)
+            memcpy(c->state[k] + c->prog[k].size * m, c->prog[k].power_on, c->prog[k].size);
+    }
+    c->mux = malloc(sizeof *c->mux * (n_modules + 1));
+    c->mux_at = calloc(n_modules + 1, sizeof *c->mux_at);
+    c->route = malloc(sizeof *c->route * 7 * (n_modules + 1));
+    c->side_heard = calloc(n_modules + 1, sizeof *c->side_heard);
+    for (uint32_t m = 0; m < n_modules; m++)
+        c->mux[m] = c->mux_table[0];
+    for (uint32_t i = 0; i < 7 * n_modules; i++)
+        c->route[i] = -1;
+    c->rcv = calloc(n_receivers + 1, sizeof *c->rcv);
+    c->src_mark = calloc(n_srcs + 1, sizeof *c->src_mark);
+    return c;
+}
+
+void core_free(core_t *c)
+{
+    if (!c)
+        return;
+    for (uint32_t i = 0; i < c->slot_used; i++)
+        free(c->slot_pool[i].members);
+    for (uint32_t i = 0; i < c->n_receivers; i++)
+        free(c->rcv[i].slots);
+    free(c->slot_pool);
+    free(c->mem_pool);
+    free(c->rcv);
+    free(c->src_mark);
+    free(c->heap);
+    free(c->out);
+    free(c->out_bytes);
+    free(c->out_starts);
+    free(c->out_srcs);
+    free(c->boards);
+    free(c->state[0]);
+    free(c->state[1]);
+    free(c->mux);
+    free(c->mux_at);
+    free(c->route);
+    free(c->side_heard);
+    for (int k = 0; k < 2; k++)
+        free(c->prog[k].power_on); /* the libraries stay loaded: Python's drivers may share them */
+    free(c);
+}
+
+void core_set_route(core_t *c, uint32_t m, uint32_t k, int32_t receiver)
+{
+    c->route[7 * m + k] = receiver;
+}
+
+void core_set_pins(core_t *c, uint32_t b, const uint8_t pins[5])
+{
+    prog_t *p = &c->prog[b & 1];
+    p->set_pins(c->state[b & 1] + (size_t)(b / 2) * p->size, pins);
+}
+
+/* Power-up of board b at `t` (now): FirmwareDriver.power_up. */
+void core_power_up(core_t *c, uint32_t b, uint64_t t, uint32_t byte_ns0, uint32_t byte_ns1,
+                   const uint8_t pins[5])
+{
+    board_t *bd = &c->boards[b];
+    prog_t *p = &c->prog[b & 1];
+    uint8_t *state = c->state[b & 1] + (size_t)(b / 2) * p->size;
+    c->now = t;
+    bd->on = 1;
+    bd->byte_ns[0] = byte_ns0;
+    bd->byte_ns[1] = byte_ns1;
+    p->setup(state, t, byte_ns0, byte_ns1);
+    p->set_pins(state, pins);
+    step_board(c, b);
+}
+
+/* Light from outside the core (the PC, a twin, a Python-program module) reaching `n_rcv`
+ * receivers, written now (`t`). */
+void core_put_light(core_t *c, uint64_t t, int32_t src, uint32_t n_rcv, const int32_t *rcv, const uint8_t *data,
+                    const uint64_t *starts, uint32_t n, uint32_t byte_ns, const uint8_t *corrupt)
+{
+    c->now = t;
+    for (uint32_t i = 0; i < n_rcv; i++)
+        medium_add(c, rcv[i], src, data, starts, n, byte_ns, corrupt);
+}
+
+uint64_t core_next(core_t *c)
+{
+    return c->heap_n ? c->heap[0].t : NO_TIME;
+}
+
+/* Run every event before `until`; stop at the end of the first instant that made an output
+ * someone outside must act on. Returns the time reached (the last instant run). */
+uint64_t core_run(core_t *c, uint64_t until)
+{
+    c->stop = 0;
+    while (c->heap_n && c->heap[0].t < until) {
+        uint64_t t = c->heap[0].t;
+        if (c->stop && t > c->now)
+            break;
+        c->now = t;
+        ev_t e = pop(c);
+        dispatch(c, &e);
+        if (c->error[0])
+            break;
+    }
+    return c->now;
+}
+
+/* The window's outputs: records, their bytes and start times, the collision sources. */
+uint32_t core_out_n(core_t *c) { return c->out_n; }
+uint32_t core_out_nbytes(core_t *c) { return c->bytes_n; }
+uint32_t core_out_nsrcs(core_t *c) { return c->srcs_n; }
+out_t *core_out(core_t *c) { return c->out; }
+uint8_t *core_out_bytes(core_t *c) { return c->out_bytes; }
+uint64_t *core_out_starts(core_t *c) { return c->out_starts; }
+int32_t *core_out_srcs(core_t *c) { return c->out_srcs; }
+uint8_t *core_ports(core_t *c, uint32_t b) { return c->boards[b].port; }
+uint64_t core_side_heard(core_t *c, uint32_t m) { return c->side_heard[m]; }
+int32_t core_mux(core_t *c, uint32_t m) { return c->mux[m]; }
+
+void core_out_clear(core_t *c)
+{
+    c->out_n = 0;
+    c->bytes_n = 0;
+    c->srcs_n = 0;
+}

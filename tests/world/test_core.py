@@ -1,0 +1,79 @@
+"""The fleet core (module_sim.core) against the Python path it replaces: the same firmware, the
+same medium, the same frames — checked on fleets whose banners pile up at the PC, with the PC
+commanding them, and on what the PC itself decoded out of the pile-up."""
+
+from __future__ import annotations
+
+import pytest
+
+from bus.clock import VirtualClock, WallClock
+from bus.scenario import loads
+from bus.session import SessionOptions, open_session
+from bus.timing import NS_PER_S
+from bus.transport import Bus
+from module_sim.fleet import Fleet
+from planner_svc.endpoint import PcEndpoint
+from tests.support.block_fleets import block_scenarios
+
+
+def _run(scenario, core: bool, *, seed_commands: int = 4):
+    clock = VirtualClock()
+    session = open_session(SessionOptions(isolated=True))
+    bus = Bus(clock, f"core{int(core)}", session=session)
+    frames: list[tuple] = []
+    events: list[bytes] = []
+    bus.subscribe_frames(lambda e: frames.append((e.sim_time_ns, e.src, e.link, e.seq, e.channel,
+                                                  e.first_byte_ns, e.raw)))
+    bus.subscribe(bus.keys.event("world"), lambda k, p: events.append(p))
+    try:
+        fleet = Fleet(bus, scenario, core=core)
+        assert (fleet.core is not None) == core
+        pc = PcEndpoint(bus)
+        fleet.power_up()
+        clock.run(until_ns=9 * NS_PER_S)
+        for k in range(seed_commands):  # broadcast commands the whole fleet answers
+            pc.send("SxP" if k % 2 == 0 else "SxOff", 1 + k % 6)
+            clock.run(until_ns=clock.now_ns() + 1_500_000_000)
+        received = [(r.frame.raw, r.t_first_ns, r.t_last_ns) for r in pc.received]
+        return sorted(frames), received, fleet.world.collisions, events
+    finally:
+        bus.close()
+        session.close()
+
+
+@pytest.mark.parametrize("n", [12, 60])
+def test_the_core_gives_the_python_paths_frames_and_the_pcs_bytes(n):
+    """Both boards of every module, UART0, the multiplexer and the IR medium (collisions at the
+    PC included) in C give every frame the FirmwareDriver path gives, at the same times, and
+    the PC decodes the same bytes out of the boot pile-up."""
+    sc = block_scenarios(n, "firmware")[0]
+    py_frames, py_rx, py_coll, py_events = _run(sc, core=False)
+    c_frames, c_rx, c_coll, c_events = _run(sc, core=True)
+    assert len(py_frames) > 20 * n
+    assert c_frames == py_frames
+    assert py_coll > 0 and c_coll == py_coll  # the pile-up is there, and the same
+    assert c_rx == py_rx
+    assert sorted(c_events) == sorted(py_events)  # collision events: receivers, sources, bytes
+
+
+def test_the_fleet_says_why_it_leaves_the_core():
+    clock = VirtualClock()
+    session = open_session(SessionOptions(isolated=True))
+    bus = Bus(clock, "corewhy", session=session)
+    try:
+        sc = block_scenarios(3, "firmware")[0]
+        assert Fleet.core_refusal(bus, sc) is None
+        assert "mux-cut" in Fleet.core_refusal(bus, sc, mux_cut=True)
+        assert "firmware program" in Fleet.core_refusal(bus, block_scenarios(3, "model")[0])
+        mixed = loads('profile = "v2"\nprogram = "firmware"\nfixed = [0, 0]\n[[modules]]\ncell = [0, 0]\n'
+                      'id = 1\n[[modules]]\ncell = [1, 0]\nid = 2\nprogram = "model"\n')
+        assert "Python programs" in Fleet.core_refusal(bus, mixed)
+        noisy = loads('profile = "v2"\nprogram = "firmware"\nfixed = [0, 0]\nbit_error_rate = 0.001\n'
+                      '[[modules]]\ncell = [0, 0]\nid = 1\n')
+        assert "bit errors" in Fleet.core_refusal(bus, noisy)
+        wall = Bus(WallClock(), "corewall", session=session)
+        assert "virtual clock" in Fleet.core_refusal(wall, sc)
+        wall.close()
+    finally:
+        bus.close()
+        session.close()
