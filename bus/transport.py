@@ -495,6 +495,14 @@ class Bus:
         self.put(self.keys.frame(frame.link.value, src), _envelope_json(env))
         return env
 
+    def frame_sample(self, frame: Frame, *, src: str, dst: str, sim_time_ns: int,
+                     **extra: Any) -> tuple[str, bytes]:
+        """The sample :meth:`publish_frame` would put (its seq taken now), for a
+        :meth:`put_batch` of many."""
+        env = Envelope.of(frame, src=src, dst=dst, sim_time_ns=sim_time_ns,
+                          wall_time_ns=self.clock.wall_ns(), seq=self.next_seq(src), **extra)
+        return self.keys.frame(frame.link.value, src), _envelope_json(env)
+
     def event(self, src: str, kind: str, **fields: Any) -> None:
         """Errors are data: publish an event (overrun, collision, timeout, fault...)."""
         self.put_json(self.keys.event(src), {"kind": kind, "src": src,

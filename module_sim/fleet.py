@@ -98,14 +98,12 @@ class Fleet:
             self.world = World(bus, scenario)
         #: the fleet core (module_sim.core) running the firmware-program modules, if it can
         self.core = self._core(bus, scenario, mux_cut) if core and shard is None else None
-        in_core = set(self.core.ids) if self.core is not None else set()
         self.modules = {m.id: VirtualModule(bus, m.id, self.profile, ir_baud=scenario.ir_baud,
                                             mux_cut=mux_cut, program=scenario.program_of(m),
-                                            core=self.core if m.id in in_core else None)
+                                            core=self.core)
                         for m in scenario.modules if m.kind == "virtual" and m.id in mine}
         if self.core is not None:
-            self.world.core = self.core
-            self.core.attach(self.world, [self.modules[i] for i in self.core.ids])
+            self.core.add_fleet(bus, self.world, list(self.modules.values()))
         # every virtual module, for the power-up phases: a shard draws them all, in order
         self._virtual = sorted(m.id for m in scenario.modules if m.kind == "virtual")
         self.twins = {m.id: VirtualModule(bus, m.id, self.profile, ir_baud=scenario.ir_baud,
@@ -114,7 +112,8 @@ class Fleet:
         self.lag = LagWatch(bus) if isinstance(bus.clock, WallClock) else None
 
     @staticmethod
-    def core_refusal(bus: Bus, scenario: Scenario, mux_cut: bool = False) -> str | None:
+    def core_refusal(bus: Bus, scenario: Scenario, mux_cut: bool = False,
+                     profile: str | None = None) -> str | None:
         """Why the fleet core cannot run this fleet (None: it can): what only the Python
         path has."""
         if type(bus.clock) is not VirtualClock:  # a lockstep clock's windows are the shards'
@@ -127,15 +126,19 @@ class Fleet:
             return "no virtual module runs the firmware program"
         if any(m.kind == "virtual" and scenario.program_of(m) != "firmware" for m in scenario.modules):
             return "some virtual modules run the Python programs"
-        return None
+        from .core import FleetCore
+
+        core = FleetCore.of(bus.clock, profile or scenario.profile)
+        return core if isinstance(core, str) else None
 
     def _core(self, bus: Bus, scenario: Scenario, mux_cut: bool) -> "FleetCore | None":
-        if self.core_refusal(bus, scenario, mux_cut) is not None:
+        if self.core_refusal(bus, scenario, mux_cut, self.profile.name) is not None:
             return None
         from .core import FleetCore
 
-        ids = [m.id for m in scenario.modules if m.kind == "virtual"]
-        return FleetCore(bus, self.profile.name, ids, [module_endpoint(m.id) for m in scenario.modules])
+        core = FleetCore.of(bus.clock, self.profile.name)
+        assert not isinstance(core, str)
+        return core
 
     def power_up(self, stagger: bool = True, *, freeze_gc: bool = False) -> None:
         """Switch the base on: every module boots, each timer at its own (seeded) phase.

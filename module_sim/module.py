@@ -129,12 +129,16 @@ class VirtualModule:
                           channel: int | None = None) -> Callable[[bytes, list[int], int], None]:
         """Frame the bytes a wire carries and publish each frame when its last byte ends."""
         framer = Framer(link)
-        at = self.bus.clock.call_at if self.core is None else self.core.queue_frame
+        bus, core = self.bus, self.core
 
         def publish(data: bytes, starts: list[int], byte_ns: int) -> None:
             for t in framer.feed(data, [s + byte_ns for s in starts]):
                 first = t.t_first_ns - byte_ns
-                at(t.t_last_ns, self._publish_frame, t.frame, src, dst, t.t_last_ns, first, channel)
+                if core is not None:
+                    core.queue_frame(bus, t.t_last_ns, t.frame, src, dst, first, channel)
+                else:
+                    bus.clock.call_at(t.t_last_ns, self._publish_frame, t.frame, src, dst, t.t_last_ns,
+                                      first, channel)
         return publish
 
     def _publish_frame(self, frame, src, dst, t_last, first, channel) -> None:
@@ -233,7 +237,9 @@ class VirtualModule:
         u = mcu.uart1 if uart else mcu.uart0
         u.overruns += 1
         self.overruns += 1
-        self.bus.event(mcu.name, "uart-overrun", sim_time_ns=t, uart=u.name, lost=lost, **where)
+        self.core.put(self.bus, self.bus.keys.event(mcu.name), _dumps({
+            "kind": "uart-overrun", "src": mcu.name, "sim_time_ns": t, "uart": u.name, "lost": lost,
+            **where}).encode())
 
     # -- state out -------------------------------------------------------------------------------
     def _overrun(self, board: Mcu, uart: Uart) -> Callable[[int], None]:
@@ -291,7 +297,11 @@ class VirtualModule:
                 "joints_open": a.joints_open, "magnets": a.magnets, "led_pos": a.led_pos,
                 "led_neg": a.led_neg, "led_joint": a.led_joint, "ir_channel": a.ir_channel,
                 "ports": a.ports, "origin": a.origin, "type": Actuators.TOPIC})[1:]
-        self.bus.put(self._actuators_key, f'{self._record_head}{sim_time_ns}{tail}'.encode())
+        payload = f'{self._record_head}{sim_time_ns}{tail}'.encode()
+        if self.core is None:
+            self.bus.put(self._actuators_key, payload)
+        else:  # with the window's other samples
+            self.core.put(self.bus, self._actuators_key, payload)
 
 
 _dumps = json.JSONEncoder(separators=(",", ":")).encode

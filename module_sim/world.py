@@ -79,7 +79,7 @@ class World:
         b.cell, b.orientation = cell, orientation % 6
         self._by_cell[cell] = b
         if self.core is not None:
-            self.core.routes_changed()
+            self.core.routes_changed(self)
         if b.module in self.own:
             self._publish_pose(b)
         self.publish_switches()
@@ -165,7 +165,7 @@ class World:
         d = json.loads(payload)
         if self.core is not None:  # the core's medium carries all light (no ber, no mux cut)
             if d.get("type") == "burst":
-                self.core.put_light(d, self._receivers(d["src"], d["transceiver"]))
+                self.core.put_light(self, d, self._receivers(d["src"], d["transceiver"]))
             return
         if d.get("type") == "cut":
             # The transmitter's multiplexer switched mid-burst: on the old transceiver the rest of

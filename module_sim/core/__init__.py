@@ -28,8 +28,10 @@ from __future__ import annotations
 import ctypes
 import heapq
 import itertools
+import json
 import subprocess
 import threading
+import weakref
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -37,7 +39,7 @@ import numpy as np
 
 from bus.cheader import FirmwareError, build_path
 from bus.ir import Burst
-from bus.keys import PC, WORLD, module_endpoint
+from bus.keys import WORLD, module_endpoint
 from bus.pins import IR_SEL_A, PORTS, ir_selected
 from bus.transport import Bus
 
@@ -57,8 +59,6 @@ _OUT_TX, _OUT_PORT, _OUT_RX, _OUT_OVERRUN, _OUT_COLLISION = 1, 2, 3, 4, 5
 #: out_t of core.c
 _OUT = np.dtype([("t", "<u8"), ("aux", "<u8"), ("kind", "<u4"), ("m", "<u4"), ("a", "<i4"),
                  ("b", "<i4"), ("n", "<i4"), ("off", "<u4"), ("off2", "<u4"), ("n2", "<u4")])
-#: external sources beyond the core's modules (the PC, twins, Python-program modules)
-_MAX_EXTERNAL_SRCS = 4096
 _lock = threading.Lock()
 
 
@@ -86,8 +86,15 @@ def _library() -> ctypes.CDLL:
         lib = ctypes.CDLL(str(LIB))
     p, u32, u64, i32 = ctypes.c_void_p, ctypes.c_uint32, ctypes.c_uint64, ctypes.c_int32
     lib.core_new.restype = p
-    lib.core_new.argtypes = [u32, u32, u32, ctypes.c_char_p, ctypes.c_char_p, ctypes.c_char_p,
-                             ctypes.c_char_p, p, u32, ctypes.c_char_p]
+    lib.core_new.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.c_char_p, ctypes.c_char_p, p, u32,
+                             ctypes.c_char_p]
+    lib.core_add_modules.restype = u32
+    lib.core_add_modules.argtypes = [p, u32]
+    lib.core_receiver.restype = i32
+    lib.core_receiver.argtypes = [p, u32, u32]
+    for name in ("core_add_external_receiver", "core_add_external_source"):
+        getattr(lib, name).restype = i32
+        getattr(lib, name).argtypes = [p]
     lib.core_error.restype = ctypes.c_char_p
     lib.core_error.argtypes = [p]
     lib.core_free.argtypes = [p]
@@ -119,118 +126,139 @@ def _view(addr: int, dtype: Any, n: int) -> np.ndarray:
     return np.frombuffer((ctypes.c_char * size).from_address(addr), dtype=dtype, count=n)
 
 
-class FleetCore:
-    """The compiled loop of a fleet's firmware-program virtual modules ``ids`` (profile
-    ``profile``) and of its IR medium, on ``bus``'s virtual clock. ``bodies``: every module
-    of the world (those outside the core have their receivers outside it)."""
+class _Fleet:
+    """What the core knows of one fleet: its bus, its world and its modules' indexes."""
 
-    def __init__(self, bus: Bus, profile: str, ids: list[int], bodies: list[str]) -> None:
-        if getattr(bus.clock, "kind", "") != "virtual":
-            raise ValueError("the fleet core runs on the virtual clock")
+    def __init__(self, bus: Bus, world: "World", modules: list["VirtualModule"], first: int) -> None:
         self.bus = bus
+        self.world = world
+        self.modules = modules
+        self.index = {m.name: first + k for k, m in enumerate(modules)}  # endpoint -> core module
+        self.external_rx: dict[tuple[str, int], int] = {}  # (endpoint, transceiver) -> receiver
+        self.sources: dict[str, int] = {}  # endpoint outside the core -> source id
+        self.light: dict[tuple[str, int], tuple[list, np.ndarray]] = {}  # routes of outside light
+
+
+class FleetCore:
+    """The compiled loop of the firmware-program virtual modules of every fleet on one virtual
+    clock (one profile), and of their IR medium. One per clock (:meth:`of`): fleets are added
+    with :meth:`add_fleet`, and one window runs them all."""
+
+    _of_clock: "weakref.WeakKeyDictionary[Any, FleetCore]" = weakref.WeakKeyDictionary()
+
+    @classmethod
+    def of(cls, clock: Any, profile: str) -> "FleetCore | str":
+        """The clock's core (made on first use), or why a fleet of ``profile`` cannot join it."""
+        core = cls._of_clock.get(clock)
+        if core is None:
+            core = cls._of_clock[clock] = cls(clock, profile)
+        if core.profile != profile:
+            return (f"another fleet on this clock runs the core with profile {core.profile} "
+                    "(one profile a clock)")
+        return core
+
+    def __init__(self, clock: Any, profile: str) -> None:
+        self._clock = weakref.ref(clock)  # the clock keeps its core (of), not the other way
+        self.profile = profile
         self.lib = lib = _library()
         # the same libraries as module_sim.firmware loads (one copy each in a process), and
         # their state at power-up as it took it before any board ran
         programs = [Program.get(board, profile) for board in ("control", "comm")]
         paths = [str(build_path("lib", board, profile)).encode() for board in ("control", "comm")]
-        self.ids = list(ids)
-        self.index = {module_endpoint(i): k for k, i in enumerate(self.ids)}
-        n = len(self.ids)
-        others = [b for b in bodies if b not in self.index]
-        self.n_receivers = 7 * n + 7 * len(others) + 8
         table = (ctypes.c_int8 * 256)(*[(-1 if (k := ir_selected(v)) is None else k) for v in range(256)])
-        self._h = lib.core_new(n, self.n_receivers, n + _MAX_EXTERNAL_SRCS, paths[0], paths[1],
-                               programs[0].power_on, programs[1].power_on, ctypes.addressof(table),
-                               PORTS.index(IR_SEL_A.port), bytes(COIL_MASK[p] for p in PORTS))
+        self._h = lib.core_new(paths[0], paths[1], programs[0].power_on, programs[1].power_on,
+                               ctypes.addressof(table), PORTS.index(IR_SEL_A.port),
+                               bytes(COIL_MASK[p] for p in PORTS))
         if not self._h:
             raise MemoryError("the fleet core could not be made")
+        weakref.finalize(self, lib.core_free, self._h)
         error = lib.core_error(self._h)
         if error:
             raise FirmwareError(error.decode())
-        self._external_rx: dict[tuple[str, int], int] = {}  # (endpoint, transceiver) -> receiver
-        self._rx_names: dict[int, tuple[str, int]] = {}
-        self._src: dict[str, int] = {}  # endpoint outside the core -> source index
-        self._src_names: dict[int, str] = {f"{module_endpoint(i)}.comm": k for k, i in enumerate(self.ids)}
-        self._src_names = {k: name for name, k in self._src_names.items()}
-        self.modules: list[VirtualModule] = []
-        self.world: World | None = None
+        self.modules: list[VirtualModule] = []  # by core index
+        self._fleets: dict[int, _Fleet] = {}  # id(world) -> its fleet
+        self._rx: dict[int, tuple[_Fleet, str, int]] = {}  # receiver -> (fleet, endpoint, transceiver)
+        self._src_names: dict[int, str] = {}  # source id -> endpoint
         self._timer: Any = None
         self._timer_at = _NO_TIME
-        self._frames: list[tuple[int, int, Any, tuple]] = []  # (t_last, order, publish, args)
+        self._frames: list[tuple] = []  # (t_last, order, bus, frame, src, dst, first, channel)
         self._order = itertools.count()
+        self._batches: dict[Bus, list[tuple[str, bytes]]] = {}  # the window's samples, per bus
         self._burst = itertools.count()  # burst numbers of what goes out on ir/rx
-        self._light_cache: dict[tuple[str, int], Any] = {}
         self.windows = 0
 
-    # -- wiring ------------------------------------------------------------------------------
-    def attach(self, world: "World", modules: list["VirtualModule"]) -> None:
-        """The world whose geometry routes the light; the Python shells of the core's modules
-        (in the order of ``ids``): their ports, framers and records."""
-        self.world = world
-        self.modules = modules
-        for k, m in enumerate(modules):
-            m.core_index = k
-        self.routes_changed()
+    @property
+    def clock(self) -> Any:
+        return self._clock()
 
-    def receiver(self, dst: str, transceiver: int) -> int:
+    # -- wiring ------------------------------------------------------------------------------
+    def add_fleet(self, bus: Bus, world: "World", modules: list["VirtualModule"]) -> None:
+        """A fleet's world (whose geometry routes its light) and the Python shells of its
+        modules in the core (their ports, framers and records)."""
+        first = self.lib.core_add_modules(self._h, len(modules))
+        fleet = self._fleets[id(world)] = _Fleet(bus, world, modules, first)
+        for k, m in enumerate(modules):
+            m.core_index = first + k
+            self.modules.append(m)
+            self._src_names[first + k] = f"{m.name}.comm"
+            for t in range(7):
+                self._rx[self.lib.core_receiver(self._h, first + k, t)] = (fleet, m.name, t)
+        world.core = self
+        self.routes_changed(world)
+
+    def _receiver(self, fleet: _Fleet, dst: str, transceiver: int) -> int:
         """The core's index of a receiving transceiver (inside the core or outside)."""
-        k = self.index.get(dst)
+        k = fleet.index.get(dst)
         if k is not None:
-            return 7 * k + transceiver
-        key = (dst, transceiver)
-        r = self._external_rx.get(key)
+            return self.lib.core_receiver(self._h, k, transceiver)
+        r = fleet.external_rx.get((dst, transceiver))
         if r is None:
-            r = 7 * len(self.ids) + len(self._external_rx)
-            if r >= self.n_receivers:
-                raise ValueError(f"the fleet core has no room for receiver {dst}:{transceiver}")
-            self._external_rx[key] = r
-            self._rx_names[r] = key
+            r = fleet.external_rx[(dst, transceiver)] = self.lib.core_add_external_receiver(self._h)
+            self._rx[r] = (fleet, dst, transceiver)
         return r
 
-    def _source(self, src: str) -> int:
-        s = self._src.get(src)
+    def _source(self, fleet: _Fleet, src: str) -> int:
+        s = fleet.sources.get(src)
         if s is None:
-            s = self._src[src] = len(self.ids) + len(self._src)
-            if s >= len(self.ids) + _MAX_EXTERNAL_SRCS:
-                raise ValueError(f"the fleet core has no room for light from {src}")
+            s = fleet.sources[src] = self.lib.core_add_external_source(self._h)
             self._src_names[s] = src
         return s
 
-    def routes_changed(self) -> None:
-        """Where each core module's light goes, from the world's geometry (after a move)."""
-        world = self.world
-        assert world is not None
+    def routes_changed(self, world: "World") -> None:
+        """Where each core module's light goes, from its world's geometry (after a move)."""
+        fleet = self._fleets[id(world)]
         set_route = self.lib.core_set_route
-        for k, ident in enumerate(self.ids):
-            src = f"{module_endpoint(ident)}.comm"
+        for m in fleet.modules:
+            src = f"{m.name}.comm"
             for t in range(7):
                 out = world._receivers(src, t)
-                set_route(self._h, k, t, self.receiver(*out[0]) if out else -1)
-        self._light_cache.clear()
+                set_route(self._h, m.core_index, t, self._receiver(fleet, *out[0]) if out else -1)
+        fleet.light.clear()
 
     # -- what Python does to the core ---------------------------------------------------------
     def power_up(self, module: "VirtualModule") -> None:
         """Both boards of ``module`` power up now (FirmwareDriver.power_up, in the core)."""
-        now = self.bus.clock.now_ns()
+        now = self.clock.now_ns()
         k = module.core_index
         for b, mcu in ((2 * k, module.ctrl), (2 * k + 1, module.comm)):
             mcu._boot_ns = now
             pins = (ctypes.c_uint8 * 5)(*module.input_pins(mcu))
             self.lib.core_power_up(self._h, b, now, mcu.uart0.byte_ns, mcu.uart1.byte_ns, ctypes.addressof(pins))
-        self._take_outputs()
-        self._kick()
+        self._after_call()
 
     def set_pins(self, module: "VirtualModule") -> None:
         pins = (ctypes.c_uint8 * 5)(*module.input_pins(module.comm))
         self.lib.core_set_pins(self._h, 2 * module.core_index + 1, ctypes.addressof(pins))
 
-    def put_light(self, d: dict[str, Any], receivers: list[tuple[str, int]]) -> None:
-        """A burst from outside the core (an ``ir/tx`` sample) reaches ``receivers``."""
+    def put_light(self, world: "World", d: dict[str, Any], receivers: list[tuple[str, int]]) -> None:
+        """A burst from outside the core (an ``ir/tx`` sample of ``world``'s fleet) reaches
+        ``receivers``."""
+        fleet = self._fleets[id(world)]
         key = (d["src"], d["transceiver"])
-        cached = self._light_cache.get(key)
+        cached = fleet.light.get(key)
         if cached is None or cached[0] != receivers:
-            idx = np.array([self.receiver(dst, t) for dst, t in receivers], dtype=np.int32)
-            cached = self._light_cache[key] = (receivers, idx)
+            idx = np.array([self._receiver(fleet, dst, t) for dst, t in receivers], dtype=np.int32)
+            cached = fleet.light[key] = (receivers, idx)
         idx = cached[1]
         if not len(idx):
             return
@@ -238,19 +266,31 @@ class FleetCore:
         starts = np.array(d["starts"], dtype=np.uint64)
         corrupt = d.get("corrupt") or []
         flags = bytes(1 if c else 0 for c in corrupt) if True in corrupt else None
-        self.lib.core_put_light(self._h, self.bus.clock.now_ns(), self._source(d["src"]), len(idx),
+        self.lib.core_put_light(self._h, self.clock.now_ns(), self._source(fleet, d["src"]), len(idx),
                                 idx.ctypes.data, data, starts.ctypes.data, len(data), d["byte_ns"], flags)
-        self._take_outputs()
-        self._kick()
+        self._after_call()
 
     def side_bytes_heard(self, module: "VirtualModule") -> int:
         return self.lib.core_side_heard(self._h, module.core_index)
 
-    def queue_frame(self, t_last: int, publish: Any, *args: Any) -> None:
+    def queue_frame(self, bus: Bus, t_last: int, frame: Any, src: str, dst: str, first: int,
+                    channel: int | None) -> None:
         """A frame the core's wires made: published once the run reaches ``t_last``."""
-        heapq.heappush(self._frames, (t_last, next(self._order), publish, args))
+        heapq.heappush(self._frames, (t_last, next(self._order), bus, frame, src, dst, first, channel))
+
+    def put(self, bus: Bus, key: str, payload: bytes) -> None:
+        """A sample of the window, put with the others at its end (:meth:`Bus.put_batch`)."""
+        batch = self._batches.get(bus)
+        if batch is None:
+            batch = self._batches[bus] = []
+        batch.append((key, payload))
 
     # -- windows ----------------------------------------------------------------------------
+    def _after_call(self) -> None:
+        self._take_outputs()
+        self._flush()
+        self._kick()
+
     def _kick(self) -> None:
         """Book the next window at the core's next event (or the next frame due)."""
         nxt = self.lib.core_next(self._h)
@@ -261,11 +301,11 @@ class FleetCore:
         if self._timer is not None:
             self._timer.cancel()
         self._timer_at = nxt
-        self._timer = self.bus.clock.call_at(nxt, self._window)
+        self._timer = self.clock.call_at(nxt, self._window)
 
     def _window(self) -> None:
         self._timer, self._timer_at = None, _NO_TIME
-        clock = self.bus.clock
+        clock = self.clock
         now = clock.now_ns()
         limit = now + MAX_WINDOW_NS
         nxt = clock.next_due_ns()
@@ -279,13 +319,21 @@ class FleetCore:
             clock.advance_to(reached)
         self._take_outputs()
         self._publish_frames(clock.now_ns())
+        self._flush()
         self._kick()
 
     def _publish_frames(self, now: int) -> None:
-        frames = self._frames
+        frames, put = self._frames, self.put
         while frames and frames[0][0] <= now:
-            _, _, publish, args = heapq.heappop(frames)
-            publish(*args)
+            t_last, _, bus, frame, src, dst, first, channel = heapq.heappop(frames)
+            put(bus, *bus.frame_sample(frame, src=src, dst=dst, sim_time_ns=t_last, first_byte_ns=first,
+                                       channel=channel))
+
+    def _flush(self) -> None:
+        if self._batches:
+            batches, self._batches = self._batches, {}
+            for bus, batch in batches.items():
+                bus.put_batch(batch)
 
     def _take_outputs(self) -> None:
         lib, h = self.lib, self._h
@@ -301,7 +349,6 @@ class FleetCore:
         starts = _view(lib.core_out_starts(h), np.uint64, nbytes)
         srcs = None
         modules = self.modules
-        bus = self.bus
         records: dict[Any, int] = {}  # module -> the instant of its ports' last change
         for t, aux, kind, m, a, b, cnt, off, off2, n2 in out:
             if kind == _OUT_TX:
@@ -315,10 +362,10 @@ class FleetCore:
                 records[module] = t
                 module.core_port(m & 1, PORTS[a], b)
             elif kind == _OUT_RX:
-                dst, rx = self._rx_names[m]
+                fleet, dst, rx = self._rx[m]
                 burst = Burst(self._src_names[cnt], next(self._burst), 0, bytes([a]), [aux],
                               t - aux, dst, rx, [bool(b)])
-                bus.put(bus.keys.ir_rx(dst), burst.to_json())
+                self.put(fleet.bus, fleet.bus.keys.ir_rx(dst), burst.to_json())
             elif kind == _OUT_OVERRUN:
                 # n: the transceiver of an IR byte (-1: none), -2: not the IR UART
                 modules[m // 2].core_overrun(t, m & 1, a, b,
@@ -327,19 +374,16 @@ class FleetCore:
                 if srcs is None:
                     srcs = _view(lib.core_out_srcs(h), np.int32, lib.core_out_nsrcs(h)).tolist()
                 names = sorted(self._src_names[s] for s in srcs[off:off + cnt])
-                dst, rx = self._rx_names.get(m) or (module_endpoint(self.ids[m // 7]), m % 7)
-                assert self.world is not None
-                self.world.collisions += 1
-                bus.event(WORLD, "collision", sim_time_ns=t, receiver=dst, transceiver=rx,
-                          sources=names, received=raw[off2:off2 + n2].hex())
+                fleet, dst, rx = self._rx[m]
+                fleet.world.collisions += 1
+                self.put(fleet.bus, fleet.bus.keys.event(WORLD), _dumps({
+                    "kind": "collision", "src": WORLD, "sim_time_ns": t, "receiver": dst,
+                    "transceiver": rx, "sources": names, "received": raw[off2:off2 + n2].hex()}).encode())
         for module, t in records.items():
             module.publish_actuators(t)
         lib.core_out_clear(h)
 
-    def close(self) -> None:
-        if self._h:
-            self.lib.core_free(self._h)
-            self._h = None
 
+_dumps = json.JSONEncoder(separators=(",", ":")).encode
 
-__all__ = ["FleetCore", "MAX_WINDOW_NS", "PC"]
+__all__ = ["FleetCore", "MAX_WINDOW_NS"]

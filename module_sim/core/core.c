@@ -29,6 +29,7 @@
 #include "hexbot_host.h"
 
 #define NO_TIME UINT64_MAX
+#define EXT_SRC (1 << 28) /* sources outside the core: EXT_SRC + j (the core's modules: 0..) */
 #define RX_DEPTH 3 /* two in the FIFO and one in the receive shift register (module_sim/avr.py) */
 
 enum { EV_WAKE = 1, EV_RX0, EV_IRDONE };
@@ -89,6 +90,8 @@ typedef struct {
 typedef struct {
     int32_t *slots; /* in flight, sorted by (start, end) */
     uint32_t n, cap;
+    int32_t module;     /* the core's module whose transceiver this is, -1: outside the core */
+    int32_t k;          /* its transceiver */
     uint64_t longest;
     uint64_t line_busy; /* the end of the last byte delivered (IrReceiver._line_busy) */
     uint8_t has_busy;
@@ -103,13 +106,14 @@ typedef struct {
 
 typedef struct {
     prog_t prog[2]; /* 0 control, 1 comm */
-    uint32_t n_modules, n_receivers, n_srcs;
+    uint32_t n_modules, n_receivers, cap_modules, cap_receivers, n_ext_srcs, cap_ext_srcs;
     board_t *boards;
     uint8_t *state[2];
     int8_t mux_table[256];
     int32_t *mux;            /* selected transceiver, -1: Y7 (unwired) */
     uint64_t *mux_at;        /* when the multiplexer last moved */
-    int32_t *route;          /* n_modules x 7: receiver the light of transceiver k reaches, -1 none */
+    int32_t *route;          /* 7 per module: receiver the light of transceiver k reaches, -1 none */
+    int32_t *module_rx;      /* 7 per module: the receiver of transceiver k */
     uint64_t *side_heard;
     uint8_t ir_sel_port;
     uint8_t coil_mask[5]; /* the control board's solenoid and magnet bits, per port */
@@ -126,7 +130,8 @@ typedef struct {
     member_t *mem_pool;
     uint32_t mem_cap, mem_used;
     int32_t mem_free;
-    uint32_t *src_mark;
+    uint32_t *src_mark;     /* per module (source m) */
+    uint32_t *ext_mark;     /* per source outside the core (EXT_SRC + j) */
     uint32_t mark;
     /* outputs of the window */
     out_t *out;
@@ -288,6 +293,11 @@ static uint8_t member_value(const core_t *c, const member_t *mb)
     return v;
 }
 
+static uint32_t *mark_of(core_t *c, int32_t src)
+{
+    return src >= EXT_SRC ? &c->ext_mark[src - EXT_SRC] : &c->src_mark[src];
+}
+
 /* first slot of r with start >= t (slots sorted by (start, end)) */
 static uint32_t slot_lower(const core_t *c, const receiver_t *r, uint64_t t, uint64_t end)
 {
@@ -333,8 +343,9 @@ static void medium_add(core_t *c, int32_t ri, int32_t src, const uint8_t *data, 
             /* the slot's sources, for the collision event */
             for (uint32_t k = 0; k < sl->n_members; k++) {
                 int32_t s = c->mem_pool[sl->members[k]].src;
-                if (c->src_mark[s] != c->mark) {
-                    c->src_mark[s] = c->mark;
+                uint32_t *mk = mark_of(c, s);
+                if (*mk != c->mark) {
+                    *mk = c->mark;
                     GROW(c->out_srcs, c->srcs_n, c->srcs_cap, 1);
                     c->out_srcs[c->srcs_n++] = s;
                 }
@@ -350,7 +361,7 @@ static void medium_add(core_t *c, int32_t ri, int32_t src, const uint8_t *data, 
         any_hit |= hit;
     }
     if (any_hit) {
-        if (c->src_mark[src] != c->mark) {
+        if (*mark_of(c, src) != c->mark) {
             GROW(c->out_srcs, c->srcs_n, c->srcs_cap, 1);
             c->out_srcs[c->srcs_n++] = src;
         }
@@ -436,9 +447,9 @@ static void ir_done(core_t *c, uint32_t ri, int32_t mi)
         return;
     r->line_busy = c->now;
     r->has_busy = 1;
-    if (ri < 7 * c->n_modules) {
-        uint32_t m = ri / 7;
-        int32_t k = (int32_t)(ri % 7);
+    if (r->module >= 0) {
+        uint32_t m = (uint32_t)r->module;
+        int32_t k = r->k;
         if (c->mux[m] == k && c->mux_at[m] <= start) {
             if (k)
                 c->side_heard[m]++;
@@ -625,16 +636,13 @@ const char *core_error(core_t *c)
     return c->error;
 }
 
-core_t *core_new(uint32_t n_modules, uint32_t n_receivers, uint32_t n_srcs, const char *control_lib,
-                 const char *comm_lib, const uint8_t *control_power_on, const uint8_t *comm_power_on,
-                 const int8_t *mux_table, uint32_t ir_sel_port, const uint8_t coil_mask[5])
+core_t *core_new(const char *control_lib, const char *comm_lib, const uint8_t *control_power_on,
+                 const uint8_t *comm_power_on, const int8_t *mux_table, uint32_t ir_sel_port,
+                 const uint8_t coil_mask[5])
 {
     core_t *c = calloc(1, sizeof *c);
     if (!c)
         return NULL;
-    c->n_modules = n_modules;
-    c->n_receivers = n_receivers;
-    c->n_srcs = n_srcs;
     c->stepping = -1;
     c->slot_free = c->mem_free = -1;
     if (load(c, 0, control_lib, control_power_on) || load(c, 1, comm_lib, comm_power_on))
@@ -642,23 +650,88 @@ core_t *core_new(uint32_t n_modules, uint32_t n_receivers, uint32_t n_srcs, cons
     memcpy(c->mux_table, mux_table, 256);
     memcpy(c->coil_mask, coil_mask, 5);
     c->ir_sel_port = (uint8_t)ir_sel_port;
-    c->boards = calloc(2 * (size_t)n_modules + 1, sizeof *c->boards);
-    for (int k = 0; k < 2; k++) {
-        c->state[k] = malloc(c->prog[k].size * (size_t)n_modules + 1);
-        for (uint32_t m = 0; m < n_modules; m++)
-            memcpy(c->state[k] + c->prog[k].size * m, c->prog[k].power_on, c->prog[k].size);
-    }
-    c->mux = malloc(sizeof *c->mux * (n_modules + 1));
-    c->mux_at = calloc(n_modules + 1, sizeof *c->mux_at);
-    c->route = malloc(sizeof *c->route * 7 * (n_modules + 1));
-    c->side_heard = calloc(n_modules + 1, sizeof *c->side_heard);
-    for (uint32_t m = 0; m < n_modules; m++)
-        c->mux[m] = c->mux_table[0];
-    for (uint32_t i = 0; i < 7 * n_modules; i++)
-        c->route[i] = -1;
-    c->rcv = calloc(n_receivers + 1, sizeof *c->rcv);
-    c->src_mark = calloc(n_srcs + 1, sizeof *c->src_mark);
     return c;
+}
+
+#define RESIZE(ptr, n)                                                                           \
+    do {                                                                                         \
+        void *p_ = realloc((ptr), (size_t)(n) * sizeof *(ptr));                                  \
+        if (!p_)                                                                                 \
+            abort();                                                                             \
+        (ptr) = p_;                                                                              \
+    } while (0)
+
+/* A receiver: transceiver k of module m, or (m = -1) one outside the core. */
+static int32_t add_receiver(core_t *c, int32_t m, int32_t k)
+{
+    if (c->n_receivers == c->cap_receivers) {
+        c->cap_receivers = c->cap_receivers ? 2 * c->cap_receivers : 64;
+        RESIZE(c->rcv, c->cap_receivers);
+    }
+    receiver_t *r = &c->rcv[c->n_receivers];
+    memset(r, 0, sizeof *r);
+    r->module = m;
+    r->k = k;
+    return (int32_t)c->n_receivers++;
+}
+
+/* n more modules (a fleet's): returns the first one's index; their receivers are
+ * core_receiver(m, k). Each starts at power-off, its light going nowhere. */
+uint32_t core_add_modules(core_t *c, uint32_t n)
+{
+    uint32_t first = c->n_modules, total = first + n;
+    if (total > c->cap_modules) {
+        uint32_t cap = c->cap_modules ? c->cap_modules : 16;
+        while (cap < total)
+            cap *= 2;
+        RESIZE(c->boards, 2 * (size_t)cap);
+        for (int k = 0; k < 2; k++)
+            RESIZE(c->state[k], c->prog[k].size * (size_t)cap + 1);
+        RESIZE(c->mux, cap);
+        RESIZE(c->mux_at, cap);
+        RESIZE(c->route, 7 * (size_t)cap);
+        RESIZE(c->side_heard, cap);
+        RESIZE(c->src_mark, cap);
+        RESIZE(c->module_rx, 7 * (size_t)cap);
+        c->cap_modules = cap;
+    }
+    for (uint32_t m = first; m < total; m++) {
+        memset(&c->boards[2 * m], 0, 2 * sizeof *c->boards);
+        for (int k = 0; k < 2; k++)
+            memcpy(c->state[k] + c->prog[k].size * m, c->prog[k].power_on, c->prog[k].size);
+        c->mux[m] = c->mux_table[0];
+        c->mux_at[m] = 0;
+        c->side_heard[m] = 0;
+        c->src_mark[m] = 0;
+        for (int k = 0; k < 7; k++) {
+            c->route[7 * m + k] = -1;
+            c->module_rx[7 * m + k] = add_receiver(c, (int32_t)m, k);
+        }
+    }
+    c->n_modules = total;
+    return first;
+}
+
+int32_t core_receiver(core_t *c, uint32_t m, uint32_t k)
+{
+    return c->module_rx[7 * m + k];
+}
+
+/* A receiver outside the core (the PC's, a twin's transceiver). */
+int32_t core_add_external_receiver(core_t *c)
+{
+    return add_receiver(c, -1, 0);
+}
+
+/* A source of light outside the core: its id for core_put_light. */
+int32_t core_add_external_source(core_t *c)
+{
+    if (c->n_ext_srcs == c->cap_ext_srcs) {
+        c->cap_ext_srcs = c->cap_ext_srcs ? 2 * c->cap_ext_srcs : 16;
+        RESIZE(c->ext_mark, c->cap_ext_srcs);
+    }
+    c->ext_mark[c->n_ext_srcs] = 0;
+    return EXT_SRC + (int32_t)c->n_ext_srcs++;
 }
 
 void core_free(core_t *c)
@@ -673,6 +746,8 @@ void core_free(core_t *c)
     free(c->mem_pool);
     free(c->rcv);
     free(c->src_mark);
+    free(c->ext_mark);
+    free(c->module_rx);
     free(c->heap);
     free(c->out);
     free(c->out_bytes);
