@@ -350,6 +350,7 @@ class Bus:
         self._subs: list[Subscription] = []
         self._publishers: dict[str, Any] = {}
         self._seq: dict[str, int] = {}
+        self._frame_keys: dict[tuple[Any, str], str] = {}  # (link, src) -> its frame key
         self._batch_key = f"{BATCH_PREFIX}/{self.keys.fleet}"
         self.published = 0
         self.closed = False
@@ -499,9 +500,12 @@ class Bus:
                      **extra: Any) -> tuple[str, bytes]:
         """The sample :meth:`publish_frame` would put (its seq taken now), for a
         :meth:`put_batch` of many."""
-        env = Envelope.of(frame, src=src, dst=dst, sim_time_ns=sim_time_ns,
-                          wall_time_ns=self.clock.wall_ns(), seq=self.next_seq(src), **extra)
-        return self.keys.frame(frame.link.value, src), _envelope_json(env)
+        env = Envelope(frame.link.value, src, dst, frame.raw, sim_time_ns, self.clock.wall_ns(),
+                       self.next_seq(src), frame.kind.value, frame.view, **extra)
+        key = self._frame_keys.get((frame.link, src))
+        if key is None:
+            key = self._frame_keys[(frame.link, src)] = self.keys.frame(frame.link.value, src)
+        return key, _envelope_json(env)
 
     def event(self, src: str, kind: str, **fields: Any) -> None:
         """Errors are data: publish an event (overrun, collision, timeout, fault...)."""

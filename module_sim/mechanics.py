@@ -39,6 +39,8 @@ class Body:
 
 #: how a virtual module's actuator record ends (bus.messages.Actuators, as VirtualModule writes it)
 _VIRTUAL_END = b'"origin":"virtual","type":"actuators"}'
+#: the joints and magnets of each coils' JSON seen (a fleet has a few dozen)
+_COIL_BITS: dict[bytes, tuple[list[bool], list[int]]] = {}
 
 
 class Mechanics:
@@ -114,6 +116,9 @@ class Mechanics:
         virtual = coils is not None and payload.endswith(_VIRTUAL_END)
         if virtual and not self.lagged and self._coils.get(key) == coils:
             return
+        if virtual and payload.startswith(b'{"module":"'):
+            self._on_virtual(key, payload, coils)
+            return
         a = Actuators.from_json(payload)
         if a.module not in self.modules:
             return  # a module the world does not hold (another fleet's stand-in, say)
@@ -134,6 +139,27 @@ class Mechanics:
             self._queue.append((a.sim_time_ns, a.module, list(a.joints_open), list(a.magnets)))
             return
         self._feed(a.module, a.sim_time_ns, list(a.joints_open), list(a.magnets))
+
+    def _on_virtual(self, key: str, payload: bytes, coils: bytes) -> None:
+        """A virtual module's record as VirtualModule.publish_actuators writes it: the module,
+        the time and the coils read off the bytes (the coils' few states decoded once each)."""
+        end = payload.index(b'"', 11)
+        module = payload[11:end].decode()
+        if module not in self.modules:
+            return  # a module the world does not hold (another fleet's stand-in, say)
+        t = int(payload[end + 16:payload.index(b",", end + 16)])
+        self._coils[key] = coils
+        bits = _COIL_BITS.get(coils)
+        if bits is None:
+            d = json.loads(b"{" + coils + b"}")
+            bits = _COIL_BITS[coils] = (d["joints_open"], d["magnets"])
+        if not self.lagged and self._commanded.get(module) == bits:
+            return
+        self._commanded[module] = (list(bits[0]), list(bits[1]))
+        if self.lagged:
+            self._queue.append((t, module, list(bits[0]), list(bits[1])))
+            return
+        self._feed(module, t, list(bits[0]), list(bits[1]))
 
     def _at_boundary(self, t_ns: int) -> None:
         """Lagged: judge the window's records from everywhere in time order, and what falls

@@ -226,10 +226,11 @@ class VirtualModule:
         """Bytes the core put on one of this module's wires (numbered as in core.c)."""
         self._core_wires[wire](data, starts, byte_ns)
 
-    def core_port(self, board: int, port: str, value: int) -> None:
-        """A port write of one of this module's programs in the core (its record is the
-        core's to publish: :meth:`publish_actuators`)."""
-        (self.comm if board else self.ctrl).port[port] = value
+    def core_ports(self, ports: bytes) -> None:
+        """Both boards' ports (control PORTA..PORTE, then comm) after the programs in the
+        core wrote them (the core publishes the record: :meth:`publish_actuators`)."""
+        c, m = self.ctrl.port, self.comm.port
+        c["A"], c["B"], c["C"], c["D"], c["E"], m["A"], m["B"], m["C"], m["D"], m["E"] = ports
 
     def core_overrun(self, t: int, board: int, uart: int, lost: int, where: dict) -> None:
         """A UART of this module in the core overran at ``t`` (see :meth:`_overrun`)."""

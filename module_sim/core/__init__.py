@@ -55,7 +55,7 @@ LIB = HERE / "build" / "libhexcore.so"
 #: The longest window with no Python timer to stop it (a run's ``until`` is checked between).
 MAX_WINDOW_NS = 100_000_000
 _NO_TIME = 2**64 - 1
-_OUT_TX, _OUT_PORT, _OUT_RX, _OUT_OVERRUN, _OUT_COLLISION = 1, 2, 3, 4, 5
+_OUT_TX, _OUT_PORTS, _OUT_RX, _OUT_OVERRUN, _OUT_COLLISION = 1, 2, 3, 4, 5
 #: out_t of core.c
 _OUT = np.dtype([("t", "<u8"), ("aux", "<u8"), ("kind", "<u4"), ("m", "<u4"), ("a", "<i4"),
                  ("b", "<i4"), ("n", "<i4"), ("off", "<u4"), ("off2", "<u4"), ("n2", "<u4")])
@@ -112,7 +112,7 @@ def _library() -> ctypes.CDLL:
     lib.core_ports.argtypes = [p, u32]
     lib.core_out_nbytes.restype = lib.core_out_nsrcs.restype = u32
     for name in ("core_out_n", "core_out", "core_out_bytes", "core_out_starts", "core_out_srcs",
-                 "core_out_clear", "core_out_nbytes", "core_out_nsrcs"):
+                 "core_out_clear", "core_out_nbytes", "core_out_nsrcs", "core_flush_ports"):
         getattr(lib, name).argtypes = [p]
     lib.core_side_heard.restype = u64
     lib.core_side_heard.argtypes = [p, u32]
@@ -179,6 +179,7 @@ class FleetCore:
         self._fleets: dict[int, _Fleet] = {}  # id(world) -> its fleet
         self._rx: dict[int, tuple[_Fleet, str, int]] = {}  # receiver -> (fleet, endpoint, transceiver)
         self._src_names: dict[int, str] = {}  # source id -> endpoint
+        self._quoted: dict[str, str] = {}  # endpoint -> its JSON string
         self._timer: Any = None
         self._timer_at = _NO_TIME
         self._frames: list[tuple] = []  # (t_last, order, bus, frame, src, dst, first, channel)
@@ -200,7 +201,7 @@ class FleetCore:
         for k, m in enumerate(modules):
             m.core_index = first + k
             self.modules.append(m)
-            self._src_names[first + k] = f"{m.name}.comm"
+            self._name_source(first + k, f"{m.name}.comm")
             for t in range(7):
                 self._rx[self.lib.core_receiver(self._h, first + k, t)] = (fleet, m.name, t)
         world.core = self
@@ -221,8 +222,12 @@ class FleetCore:
         s = fleet.sources.get(src)
         if s is None:
             s = fleet.sources[src] = self.lib.core_add_external_source(self._h)
-            self._src_names[s] = src
+            self._name_source(s, src)
         return s
+
+    def _name_source(self, s: int, name: str) -> None:
+        self._src_names[s] = name
+        self._quoted[name] = _dumps(name)
 
     def routes_changed(self, world: "World") -> None:
         """Where each core module's light goes, from its world's geometry (after a move)."""
@@ -337,6 +342,7 @@ class FleetCore:
 
     def _take_outputs(self) -> None:
         lib, h = self.lib, self._h
+        lib.core_flush_ports(h)  # what power-up or light from outside wrote now
         n = lib.core_out_n(h)
         error = lib.core_error(h)
         if error:
@@ -349,18 +355,13 @@ class FleetCore:
         starts = _view(lib.core_out_starts(h), np.uint64, nbytes)
         srcs = None
         modules = self.modules
-        records: dict[Any, int] = {}  # module -> the instant of its ports' last change
         for t, aux, kind, m, a, b, cnt, off, off2, n2 in out:
             if kind == _OUT_TX:
                 modules[m].core_wire(a, raw[off:off + cnt], starts[off:off + cnt].tolist(), b)
-            elif kind == _OUT_PORT:
-                # one record per module and instant, with the ports after all that instant's writes
-                module = modules[m // 2]
-                last = records.get(module)
-                if last is not None and last != t:
-                    module.publish_actuators(last)
-                records[module] = t
-                module.core_port(m & 1, PORTS[a], b)
+            elif kind == _OUT_PORTS:  # one record per module and instant
+                module = modules[m]
+                module.core_ports(raw[off:off + 10])
+                module.publish_actuators(t)
             elif kind == _OUT_RX:
                 fleet, dst, rx = self._rx[m]
                 burst = Burst(self._src_names[cnt], next(self._burst), 0, bytes([a]), [aux],
@@ -373,14 +374,14 @@ class FleetCore:
             elif kind == _OUT_COLLISION:
                 if srcs is None:
                     srcs = _view(lib.core_out_srcs(h), np.int32, lib.core_out_nsrcs(h)).tolist()
-                names = sorted(self._src_names[s] for s in srcs[off:off + cnt])
+                # bus.event's JSON, the sources' names encoded once each
+                names = ",".join(map(self._quoted.__getitem__,
+                                     sorted(map(self._src_names.__getitem__, srcs[off:off + cnt]))))
                 fleet, dst, rx = self._rx[m]
                 fleet.world.collisions += 1
-                self.put(fleet.bus, fleet.bus.keys.event(WORLD), _dumps({
-                    "kind": "collision", "src": WORLD, "sim_time_ns": t, "receiver": dst,
-                    "transceiver": rx, "sources": names, "received": raw[off2:off2 + n2].hex()}).encode())
-        for module, t in records.items():
-            module.publish_actuators(t)
+                self.put(fleet.bus, fleet.bus.keys.event(WORLD), (
+                    f'{{"kind":"collision","src":"{WORLD}","sim_time_ns":{t},"receiver":{_dumps(dst)},'
+                    f'"transceiver":{rx},"sources":[{names}],"received":"{raw[off2:off2 + n2].hex()}"}}').encode())
         lib.core_out_clear(h)
 
 

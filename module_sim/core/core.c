@@ -33,7 +33,8 @@
 #define RX_DEPTH 3 /* two in the FIFO and one in the receive shift register (module_sim/avr.py) */
 
 enum { EV_WAKE = 1, EV_RX0, EV_IRDONE };
-enum { OUT_TX = 1, OUT_PORT, OUT_RX, OUT_OVERRUN, OUT_COLLISION };
+/* OUT_PORTS: a module's ten port bytes (control A..E, comm A..E) after an instant's writes */
+enum { OUT_TX = 1, OUT_PORTS, OUT_RX, OUT_OVERRUN, OUT_COLLISION };
 /* wires of a module in OUT_TX: 0 UART0 up (ctrl->comm), 1 down, 2 debug, 3+k IR transceiver k */
 enum { W_UP = 0, W_DOWN = 1, W_DEBUG = 2, W_IR = 3 };
 
@@ -117,6 +118,9 @@ typedef struct {
     uint64_t *side_heard;
     uint8_t ir_sel_port;
     uint8_t coil_mask[5]; /* the control board's solenoid and magnet bits, per port */
+    uint8_t *ports_dirty;  /* per module: its ports changed in this instant */
+    uint32_t *dirty;       /* those modules, in the order they changed */
+    uint32_t n_dirty;
     /* events */
     ev_t *heap;
     uint32_t heap_n, heap_cap;
@@ -486,9 +490,10 @@ static void replay(core_t *c, uint32_t b)
                     c->mux_at[m] = c->now;
                 }
             }
-            out_t *o = out_new(c, OUT_PORT, c->now, b);
-            o->a = e->a;
-            o->b = e->n;
+            if (!c->ports_dirty[m]) {
+                c->ports_dirty[m] = 1;
+                c->dirty[c->n_dirty++] = m;
+            }
             if (!(b & 1) && ((old ^ e->n) & c->coil_mask[e->a]))
                 c->stop = 1; /* a coil: the mechanics acts on it now */
             continue;
@@ -693,6 +698,8 @@ uint32_t core_add_modules(core_t *c, uint32_t n)
         RESIZE(c->side_heard, cap);
         RESIZE(c->src_mark, cap);
         RESIZE(c->module_rx, 7 * (size_t)cap);
+        RESIZE(c->ports_dirty, cap);
+        RESIZE(c->dirty, cap);
         c->cap_modules = cap;
     }
     for (uint32_t m = first; m < total; m++) {
@@ -703,6 +710,7 @@ uint32_t core_add_modules(core_t *c, uint32_t n)
         c->mux_at[m] = 0;
         c->side_heard[m] = 0;
         c->src_mark[m] = 0;
+        c->ports_dirty[m] = 0;
         for (int k = 0; k < 7; k++) {
             c->route[7 * m + k] = -1;
             c->module_rx[7 * m + k] = add_receiver(c, (int32_t)m, k);
@@ -748,6 +756,8 @@ void core_free(core_t *c)
     free(c->src_mark);
     free(c->ext_mark);
     free(c->module_rx);
+    free(c->ports_dirty);
+    free(c->dirty);
     free(c->heap);
     free(c->out);
     free(c->out_bytes);
@@ -807,6 +817,22 @@ uint64_t core_next(core_t *c)
     return c->heap_n ? c->heap[0].t : NO_TIME;
 }
 
+/* The ports of every module written in the instant that ends: one record each. */
+void core_flush_ports(core_t *c)
+{
+    for (uint32_t i = 0; i < c->n_dirty; i++) {
+        uint32_t m = c->dirty[i];
+        uint8_t ports[10];
+        memcpy(ports, c->boards[2 * m].port, 5);
+        memcpy(ports + 5, c->boards[2 * m + 1].port, 5);
+        out_t *o = out_new(c, OUT_PORTS, c->now, m);
+        o->off = out_put_bytes(c, ports, NULL, 10);
+        o->n = 10;
+        c->ports_dirty[m] = 0;
+    }
+    c->n_dirty = 0;
+}
+
 /* Run every event before `until`; stop at the end of the first instant that made an output
  * someone outside must act on. Returns the time reached (the last instant run). */
 uint64_t core_run(core_t *c, uint64_t until)
@@ -814,6 +840,8 @@ uint64_t core_run(core_t *c, uint64_t until)
     c->stop = 0;
     while (c->heap_n && c->heap[0].t < until) {
         uint64_t t = c->heap[0].t;
+        if (t > c->now && c->n_dirty)
+            core_flush_ports(c);
         if (c->stop && t > c->now)
             break;
         c->now = t;
@@ -822,6 +850,7 @@ uint64_t core_run(core_t *c, uint64_t until)
         if (c->error[0])
             break;
     }
+    core_flush_ports(c);
     return c->now;
 }
 

@@ -45,7 +45,7 @@ GOLDEN_THESIS_12 = (11904, 2122, "b2830bbf6f48c0b22935b1d942320cc45dc7adc77bb618
 #: frames (GOLDEN_THESIS_12_FRAMES), no ``ir/tx``/``ir/rx`` samples for light inside the core
 #: (the PC's receiver gets its bytes on ``ir/rx/pc`` one at a time), and the records of LED and
 #: multiplexer changes (and UART overruns) written at the end of their window, with their own times.
-GOLDEN_THESIS_12_CORE = (9372, 2122, "6747553f24e18f05cbda23a53c5fb4c8b01bfd68a69792f604a0a1e84c69edfd")
+GOLDEN_THESIS_12_CORE = (9372, 2122, "b914ee363c5552478507555cbfb54589b2ea7cbfa2637fe4667328516acce13d")
 
 
 def _digest(path) -> tuple[int, int, str]:
