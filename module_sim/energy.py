@@ -60,9 +60,33 @@ class _Track:
     times: list[int] = field(default_factory=list)
     joints: list[int] = field(default_factory=list)
     magnets: list[int] = field(default_factory=list)
+    #: coil-seconds of magnets and of joints from the first change point to each one: a
+    #: span's energy is a difference of two, not a walk over the whole history
+    mag_s: list[float] = field(default_factory=list)
+    joint_s: list[float] = field(default_factory=list)
 
     def active(self, k: int) -> bool:
         return self.joints[k] > 0 or self.magnets[k] > 0
+
+    def append(self, t_ns: int, joints: int, magnets: int) -> None:
+        if self.times:
+            dt = (t_ns - self.times[-1]) / NS_PER_S
+            self.mag_s.append(self.mag_s[-1] + self.magnets[-1] * dt)
+            self.joint_s.append(self.joint_s[-1] + self.joints[-1] * dt)
+        else:
+            self.mag_s.append(0.0)
+            self.joint_s.append(0.0)
+        self.times.append(t_ns)
+        self.joints.append(joints)
+        self.magnets.append(magnets)
+
+    def coil_seconds(self, t_ns: int) -> tuple[float, float]:
+        """Magnet and joint coil-seconds from the first change point to ``t_ns``."""
+        k = bisect.bisect_right(self.times, t_ns) - 1
+        if k < 0:
+            return 0.0, 0.0
+        dt = (t_ns - self.times[k]) / NS_PER_S
+        return self.mag_s[k] + self.magnets[k] * dt, self.joint_s[k] + self.joints[k] * dt
 
 
 class EnergyMeter:
@@ -91,9 +115,7 @@ class EnergyMeter:
         if tr.times and tr.times[-1] == t_ns:  # same instant: the last state wins
             tr.joints[-1], tr.magnets[-1] = nj, nm
         elif not tr.times or (tr.joints[-1], tr.magnets[-1]) != (nj, nm):
-            tr.times.append(t_ns)
-            tr.joints.append(nj)
-            tr.magnets.append(nm)
+            tr.append(t_ns, nj, nm)
 
     def record_move(self, move: MoveCompleted) -> EnergyBreakdown:
         """The energy of a finished move; its logic share is added to the run total."""
@@ -109,18 +131,16 @@ class EnergyMeter:
         mags = sols = 0.0
         for mid in (self._tracks if modules is None else modules):
             tr = self._tracks.get(mid)
-            if tr is None:
+            if tr is None or not tr.times:
                 continue
-            for k, t in enumerate(tr.times):
-                seg_end = tr.times[k + 1] if k + 1 < len(tr.times) else end_ns
-                if seg_end is None:  # an open last segment with no end: nothing to add
-                    continue
-                lo = max(t, start_ns)
-                hi = seg_end if end_ns is None else min(seg_end, end_ns)
-                if hi > lo:
-                    dt = (hi - lo) / NS_PER_S
-                    mags += tr.magnets[k] * self.magnet_w * dt
-                    sols += tr.joints[k] * self.solenoid_w * dt
+            # an open last segment with no end adds nothing
+            hi = tr.times[-1] if end_ns is None else end_ns
+            lo = max(start_ns, tr.times[0])
+            if hi > lo:
+                m_hi, j_hi = tr.coil_seconds(hi)
+                m_lo, j_lo = tr.coil_seconds(lo)
+                mags += (m_hi - m_lo) * self.magnet_w
+                sols += (j_hi - j_lo) * self.solenoid_w
         return EnergyBreakdown(mags, sols, 0.0)
 
     def burst_start(self, module: str, at_ns: int) -> int | None:

@@ -75,11 +75,13 @@ class World:
         self._place(self.bodies[move.module], move.to_cell, move.orientation_after)
 
     def _place(self, b: Body, cell: Cell, orientation: int) -> None:
+        old = b.cell
         del self._by_cell[b.cell]
         b.cell, b.orientation = cell, orientation % 6
         self._by_cell[cell] = b
-        if self.core is not None:
-            self.core.routes_changed(self)
+        if self.core is not None:  # light changes only around the two cells
+            near = {c for at in (old, cell) for c in (at, *at.neighbours())}
+            self.core.routes_changed(self, [x.module for c in near if (x := self._by_cell.get(c))])
         if b.module in self.own:
             self._publish_pose(b)
         self.publish_switches()

@@ -68,7 +68,12 @@ class History:
         return self._items[i - self._dropped]
 
     def index(self, r: Received) -> int:
-        return self._items.index(r) + self._dropped
+        items = self._items
+        # the frame asked for is nearly always one of the last: look from the end, by identity
+        for back, x in enumerate(reversed(items)):
+            if x is r:
+                return len(items) - 1 - back + self._dropped
+        return items.index(r) + self._dropped
 
 
 class PcEndpoint:

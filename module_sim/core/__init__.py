@@ -229,11 +229,15 @@ class FleetCore:
         self._src_names[s] = name
         self._quoted[name] = _dumps(name)
 
-    def routes_changed(self, world: "World") -> None:
-        """Where each core module's light goes, from its world's geometry (after a move)."""
+    def routes_changed(self, world: "World", modules: list[str] | None = None) -> None:
+        """Where the light of ``modules`` (default: every core module of ``world``) goes,
+        from the world's geometry (after a move: the modules around its two cells)."""
         fleet = self._fleets[id(world)]
         set_route = self.lib.core_set_route
-        for m in fleet.modules:
+        chosen = fleet.modules if modules is None else \
+            [fleet.modules[fleet.index[name] - fleet.modules[0].core_index] for name in modules
+             if name in fleet.index]
+        for m in chosen:
             src = f"{m.name}.comm"
             for t in range(7):
                 out = world._receivers(src, t)

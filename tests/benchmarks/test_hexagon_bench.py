@@ -1,0 +1,59 @@
+"""Benchmark: the 127-module hexagon of radius 6 shifted by three cells, one ``hexbench run``
+(``complete`` planner, virtual clock, the C firmware in the fleet core, every frame recorded),
+whole process: bring-up, planning and every move (issue: fleet core). Prints the real-time
+factor against the target (>= 300x) and where the wall time went (the planner's own share).
+
+Run alone: ``pytest -s tests/benchmarks/test_hexagon_bench.py``.
+"""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+import time
+
+from bus.lattice import Cell
+
+RADIUS, SHIFT, SIDE = 6, 3, 1
+TARGET = 300.0
+
+
+def hexagon_scenario(radius: int = RADIUS, shift: int = SHIFT, side: int = SIDE) -> str:
+    """The scenario's TOML: every cell within ``radius`` of (0, 0), the goal the same shape
+    ``shift`` cells towards ``side``; the fixed module sits where both overlap."""
+    origin = Cell(0, 0)
+    cells = sorted({Cell(x, y) for x in range(-2 * radius, 2 * radius + 1)
+                    for y in range(-2 * radius, 2 * radius + 1) if origin.distance(Cell(x, y)) <= radius},
+                   key=lambda c: (c.y, c.x))
+    goal = []
+    for c in cells:
+        for _ in range(shift):
+            c = c.neighbour(side)
+        goal.append(c)
+    fixed = next(c for c in cells if c in set(goal))
+    lines = [f'name = "hexagon-{len(cells)}"', 'profile = "v2"', 'program = "firmware"',
+             f"fixed = [{fixed.x}, {fixed.y}]",
+             "goal = [" + ", ".join(f"[{c.x}, {c.y}]" for c in goal) + "]"]
+    for i, c in enumerate(cells, start=1):
+        lines += ["[[modules]]", f"cell = [{c.x}, {c.y}]", f"id = {i}"]
+    return "\n".join(lines) + "\n"
+
+
+def test_hexagon_127_shifted_by_three(tmp_path):
+    path = tmp_path / "hexagon.toml"
+    path.write_text(hexagon_scenario())
+    t = time.perf_counter()
+    p = subprocess.run([sys.executable, "-m", "hexbench", "run", str(path), "--planner", "complete",
+                        "--clock", "virtual", "--record", str(tmp_path / "hexagon.mcap")],
+                       capture_output=True, text=True, timeout=3600)
+    wall = time.perf_counter() - t
+    assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
+    summary = re.search(r"moves (\d+) \(planned \d+\), planning ([\d.]+) ms, run ([\d.]+) s sim", p.stdout)
+    assert summary, p.stdout[-2000:]
+    moves, planning_s, sim_s = int(summary[1]), float(summary[2]) / 1000, float(summary[3])
+    factor = sim_s / wall
+    print(f"\n[hexagon] 127 modules, radius {RADIUS}, shifted by {SHIFT}: {moves} moves, {sim_s:.0f} s sim "
+          f"in {wall:.1f} s wall, whole process ({planning_s:.1f} s of it planning): {factor:.0f}x real time; "
+          f"target >= {TARGET:.0f}x: {'met' if factor >= TARGET else 'MISSED'}")
+    assert "goal reached" in p.stdout
