@@ -5,6 +5,7 @@
  * an image that finds another board's record in the EEPROM drives no pin. */
 #include <avr/interrupt.h>
 #include <avr/io.h>
+#include <avr/sleep.h>
 #include <util/atomic.h>
 #include <util/delay.h>
 
@@ -19,7 +20,11 @@
  * came 64 cycles late). */
 static volatile uint16_t ticks;
 
-ISR(TIMER0_COMP_vect) { ticks++; }
+static volatile uint8_t woken; /* an interrupt came since the step began (board_idle) */
+ISR(TIMER0_COMP_vect) { ticks++; woken = 1; }
+
+/* What the program found in this step (board_idle): a byte read, a full UDR (bit = UART). */
+static uint8_t rx_read, tx_blocked;
 
 /* --- background transmit queue (the v2 actuator reports) ---
  * One ring per UART: the program writes head, the UDRE interrupt tail (single-byte stores,
@@ -42,7 +47,7 @@ static void udre_enable(uint8_t uart, uint8_t on)
 /* The UDRE interrupt: itself off and the others on while it works, so the tick waits for
  * no more than its prologue or epilogue (a whole UDRE handler, ~60 cycles, came close to
  * one Timer0 count); the program cannot run before it returns, so the ring is its own. */
-static void drain(uint8_t uart)
+static inline __attribute__((always_inline)) void drain(uint8_t uart)
 {
     udre_enable(uart, 0);
     sei();
@@ -58,6 +63,7 @@ static void drain(uint8_t uart)
     cli();
     if (head[uart] != t)
         udre_enable(uart, 1);
+    woken = 1;
 }
 
 ISR(USART0_UDRE_vect) { drain(UART0); }
@@ -104,13 +110,20 @@ uint8_t board_rx_ready(uint8_t uart)
     return uart == UART0 ? (UCSR0A & _BV(RXC0)) != 0 : (UCSR1A & _BV(RXC1)) != 0;
 }
 
-uint8_t board_rx_read(uint8_t uart) { return uart == UART0 ? UDR0 : UDR1; }
+uint8_t board_rx_read(uint8_t uart)
+{
+    rx_read |= (uint8_t)(1 << uart);
+    return uart == UART0 ? UDR0 : UDR1;
+}
 
 uint8_t board_tx_ready(uint8_t uart)
 {
     if (head[uart] != tail[uart])
         return 0; /* the program's bytes go after what is queued */
-    return uart == UART0 ? (UCSR0A & _BV(UDRE0)) != 0 : (UCSR1A & _BV(UDRE1)) != 0;
+    uint8_t ready = uart == UART0 ? (UCSR0A & _BV(UDRE0)) != 0 : (UCSR1A & _BV(UDRE1)) != 0;
+    if (!ready)
+        tx_blocked |= (uint8_t)(1 << uart);
+    return ready;
 }
 
 void board_tx_write(uint8_t uart, uint8_t byte)
@@ -149,6 +162,8 @@ void board_init(const uint8_t outputs[5], const uint8_t pullups[5])
     UCSR1B = _BV(RXEN1) | _BV(TXEN1);
     /* Timer0 runs since power-up (timer_at_power_up); its tick from now on */
     TIMSK |= _BV(OCIE0);
+    set_sleep_mode(SLEEP_MODE_IDLE); /* SLEEP runs only in board_idle: SE stays set */
+    sleep_enable();
     sei();
 }
 
@@ -217,12 +232,75 @@ __attribute__((noreturn)) static void wrong_board(uint8_t kind)
     }
 }
 
+/* --- idle between steps ---
+ * program_step() returns when the program waits for a tick, a received byte or a free UDR.
+ * Until one of those comes the CPU sleeps in Idle mode (the timer and the USARTs run on),
+ * woken by an interrupt: Timer0's tick (always on), a received byte (RXCIE, on for one
+ * wake-up: its handler turns it off and leaves the byte to the program's polling), UDR free
+ * again after a byte the program wrote (UDRIE, on only while UDRE is low; drain() turns it
+ * off when the background queue is empty). Whatever came during the step itself (an
+ * interrupt, a byte, a free UDR the program had found busy) runs the step again instead.
+ * Power saving on the chip; in simavr a sleeping core costs nothing, so a fleet of them
+ * runs faster than real time. The pins are not an interrupt source: an optical switch or a
+ * DIP change is seen at the next tick at the latest. */
+static uint8_t rx_at_step;     /* RXC of each UART (bit = UART) when the step began */
+
+ISR(USART0_RXC_vect) { UCSR0B &= ~_BV(RXCIE0); woken = 1; }
+ISR(USART1_RXC_vect) { UCSR1B &= ~_BV(RXCIE1); woken = 1; }
+
+static uint8_t rxc_bits(void)
+{
+    return (uint8_t)(((UCSR0A & _BV(RXC0)) ? 1 : 0) | ((UCSR1A & _BV(RXC1)) ? 2 : 0));
+}
+
+static uint8_t udre_bits(void)
+{
+    return (uint8_t)(((UCSR0A & _BV(UDRE0)) ? 1 : 0) | ((UCSR1A & _BV(UDRE1)) ? 2 : 0));
+}
+
+static void board_step(void)
+{
+    woken = 0;
+    rx_read = 0;
+    tx_blocked = 0;
+    rx_at_step = rxc_bits();
+    program_step();
+}
+
+static void board_idle(void)
+{
+    uint8_t rx = rxc_bits(), udre = udre_bits();
+    /* a byte that came during the step (or after one the program read), a UDR the program
+     * found busy and that is free now: the step may have looked too early */
+    if ((rx & (uint8_t)(rx_read | ~rx_at_step)) || (tx_blocked & udre))
+        return;
+    /* each a single SBI: no interrupt can come between read and write */
+    if (!(rx & 1))
+        UCSR0B |= _BV(RXCIE0);
+    if (!(rx & 2))
+        UCSR1B |= _BV(RXCIE1);
+    if (!(udre & 1))
+        UCSR0B |= _BV(UDRIE0);
+    if (!(udre & 2))
+        UCSR1B |= _BV(UDRIE1);
+    /* interrupts off only for the test: a tick is never held up more than a few cycles */
+    cli();
+    if (woken) {
+        sei();
+        return;
+    }
+    sei(); /* the instruction after SEI runs before any interrupt: no wake-up is lost */
+    sleep_cpu();
+}
+
 int main(void)
 {
     uint8_t kind = board_kind();
     if (kind != OWN_KIND)
         wrong_board(kind);
     board_init(program_outputs, program_pullups);
-    for (;;)
-        program_step();
+    for (;;) {
+        board_step();
+        board_idle();
+    }
 }
