@@ -59,7 +59,7 @@ def build_path(kind: str, board: str, profile: str) -> Path:
 def ensure_built() -> None:
     """Build the firmware if any of it is missing (``make -C firmware``)."""
     with _build_lock:
-        wanted = [BUILD_DIR / "hexbot-simavr"] + [build_path(k, b, p) for k in ("elf", "lib")
+        wanted = [BUILD_DIR / "hexbot-simavr", BUILD_DIR / "libhexbot-simavr.so"] + [build_path(k, b, p) for k in ("elf", "lib")
                                                   for b in ("comm", "control") for p in PROFILE_TAG]
         if all(p.exists() for p in wanted):
             return

@@ -29,9 +29,12 @@ PROFILES = ("v2", "thesis-2009")
 #: virtual: the Python model in the fleet; real: a board behind serial ports; firmware: the
 #: C firmware in simavr behind ptys (hil.firmware), bridged like a real board.
 KINDS = ("virtual", "real", "firmware")
-#: What runs on a virtual module: the Python programs ("model") or the C firmware compiled
-#: for the host ("firmware", module_sim.firmware).
-PROGRAMS = ("model", "firmware")
+#: What runs on a virtual module: the Python programs ("model"), the C firmware compiled
+#: for the host ("firmware", module_sim.firmware) or the flashed images in simavr cores
+#: in-process ("simavr", module_sim.simavr).
+PROGRAMS = ("model", "firmware", "simavr")
+#: The programs built for 300 baud IR (their localization slots are in ticks of it).
+C_PROGRAMS = ("firmware", "simavr")
 
 
 class ScenarioError(HexbenchError, ValueError):
@@ -133,7 +136,7 @@ _CELLS = {"description": "a list of cells [[x, y], ...]", "type": "array", "item
 _MATRIX = {"description": 'a thesis 0/1 matrix: a list of row strings like "1 0 1"',
            "type": "array", "items": {"type": "string"}, "minItems": 1}
 _SERIAL_URL = {"description": "a serial URL string", "type": "string"}
-_PROGRAM = {"description": "'model' or 'firmware'", "enum": list(PROGRAMS)}
+_PROGRAM = {"description": "'model', 'firmware' or 'simavr'", "enum": list(PROGRAMS)}
 _MODULE = {
     "description": "a table with cell, id, kind", "type": "object",
     "additionalProperties": False, "required": ["cell"],
@@ -429,9 +432,9 @@ def _faults(d: dict[str, Any], modules: list[ModuleSpec], at: _Where) -> list[Ac
 
 
 def _firmware_baud(program: str, ir_baud: int, modules: list[ModuleSpec], at: _Where) -> None:
-    if ir_baud != 300 and (program == "firmware" or any(m.program == "firmware" for m in modules)):
-        raise at.expected(("ir_baud",), "300 with program 'firmware' (the C programs are "
-                          "built for 300 baud IR)", ir_baud)
+    if ir_baud != 300 and (program in C_PROGRAMS or any(m.program in C_PROGRAMS for m in modules)):
+        raise at.expected(("ir_baud",), "300 with program 'firmware' or 'simavr' (the C programs "
+                          "are built for 300 baud IR)", ir_baud)
 
 
 def _connected(cells: list[Cell]) -> list[Cell] | None:
@@ -500,8 +503,8 @@ def override(sc: Scenario, *, seed: int | None = None, profile: str | None = Non
         raise ScenarioError(f"program {program!r}: expected one of {', '.join(PROGRAMS)}")
     if program is not None:
         modules = [dataclasses.replace(m, program=None) for m in modules]
-    if program == "firmware" and sc.ir_baud != 300:
-        raise ScenarioError(f"--program firmware: scenario {sc.name!r} has ir_baud {sc.ir_baud}; "
+    if program in C_PROGRAMS and sc.ir_baud != 300:
+        raise ScenarioError(f"--program {program}: scenario {sc.name!r} has ir_baud {sc.ir_baud}; "
                             "the C programs are built for 300 baud IR")
     return dataclasses.replace(sc, modules=modules, faults=list(sc.faults) + extra,
                                program=program or sc.program,

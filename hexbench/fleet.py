@@ -39,7 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--real", action="append", default=[], metavar="ID=PORT[,DEBUG_PORT]",
                    help="module ID is a real board (bridged by 'hexbench hil'): the world runs "
                         "its twin; repeatable")
-    p.add_argument("--program", choices=["model", "firmware"], help="what virtual modules run")
+    p.add_argument("--program", choices=["model", "firmware", "simavr"], help="what virtual modules run")
     p.add_argument("--shard", metavar="K/N",
                    help="with --clock virtual: run part K of N of the fleet (its modules and its "
                         "part of the world) on a lockstep clock shared with the other parts and "

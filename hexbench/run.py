@@ -51,9 +51,10 @@ def add_run_arguments(p: argparse.ArgumentParser, *, with_fleet: bool) -> None:
                    help="module ID is a real board: its central IR transceiver on PORT and its "
                         "debug UART1 on DEBUG_PORT (pyserial URLs); repeatable. The world runs "
                         "a twin of it (docs/hil.md)")
-    p.add_argument("--program", choices=["model", "firmware"],
-                   help="what virtual modules run: the Python programs (model, the default) or the "
-                        "C firmware compiled for the host (docs/firmware.md)")
+    p.add_argument("--program", choices=["model", "firmware", "simavr"],
+                   help="what virtual modules run: the Python programs (model, the default), the "
+                        "C firmware compiled for the host (firmware) or the flashed images in "
+                        "simavr cores in-process (simavr) (docs/firmware.md)")
     p.add_argument("--firmware", action="append", default=[], metavar="ID",
                    help="module ID runs the C firmware (firmware/) in simavr, bridged like a real "
                         "board; repeatable; needs --clock wall (docs/firmware.md)")

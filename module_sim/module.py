@@ -37,11 +37,12 @@ class VirtualModule:
         its light (firmware program only); this object keeps their ports, frames and records."""
         if program not in PROGRAMS:
             raise ValueError(f"program {program!r}: expected one of {', '.join(PROGRAMS)}")
-        #: "model": the Python programs; "firmware": the C programs (module_sim.firmware)
+        #: "model": the Python programs; "firmware": the C programs (module_sim.firmware);
+        #: "simavr": the images in simavr cores (module_sim.simavr)
         self.program = program
-        if program == "firmware" and ir_baud != Baud.IR:
+        if program in ("firmware", "simavr") and ir_baud != Baud.IR:
             # the C programs' localization slots are built for the IR baud rate (bus.cheader)
-            raise ValueError(f"the firmware program is built for {int(Baud.IR)} baud IR, not {ir_baud}: "
+            raise ValueError(f"the {program} program is built for {int(Baud.IR)} baud IR, not {ir_baud}: "
                              "use program = \"model\" for other IR baud rates")
         self.bus = bus
         self.origin = origin
@@ -95,10 +96,17 @@ class VirtualModule:
             for uart in (board.uart0, board.uart1):
                 uart.on_overrun = self._overrun(board, uart)
         bus.subscribe(bus.keys.ir_rx(self.name), self._ir_in.on_message)
+        if program == "simavr":  # made now: a missing image or library fails before the run
+            from .simavr import SimavrDriver
+
+            self._simavr = SimavrDriver(self)
 
     def power_up(self) -> None:
         if self.core is not None:
             self.core.power_up(self)
+            return
+        if self.program == "simavr":
+            self._simavr.power_up()
             return
         if self.program == "firmware":
             from .firmware import FirmwareDriver, Program
