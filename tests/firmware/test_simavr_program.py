@@ -1,0 +1,123 @@
+"""``program = "simavr"``: the flashed images in simavr cores, in-process, as virtual modules'
+programs (module_sim/simavr.py). Short runs of the pair scenario: against the host-built
+firmware's frames, twice for determinism, per module from a scenario file, over two shards,
+and the errors (a missing image, a library that does not load) as one line. thesis-12 runs
+in the benchmark (tests/benchmarks/test_simavr_bench.py)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+import pytest
+
+from bus.timing import TICK_NS
+from hexbench.cli import main
+from recordings.reader import read_frames
+from toolchain import needs_avr
+
+ROOT = Path(__file__).resolve().parents[2]
+pytestmark = needs_avr
+
+#: The chip runs at its UBRR-exact baud rates (300.48, 4807.7), the host build at the nominal
+#: ones: a 17-byte line ends about 1 ms earlier, plus the relays over UART0 (docs/firmware.md).
+BAUD_DRIFT_NS = 3_000_000
+
+
+def _run(tmp_path, name: str, *args: str, scenario: str = "pair") -> list:
+    path = tmp_path / f"{name}.mcap"
+    assert main(["run", scenario, "--planner", "complete", "--clock", "virtual", "--isolated",
+                 "--record", str(path), *args]) == 0
+    return sorted((e.sim_time_ns, e.link, e.src, e.dst, e.raw, e.kind, e.channel)
+                  for e in read_frames(path))
+
+
+@pytest.fixture(scope="module")
+def simavr_pair(tmp_path_factory):
+    return _run(tmp_path_factory.mktemp("simavr"), "simavr", "--program", "simavr")
+
+
+def _wires(frames) -> dict:
+    out = defaultdict(list)
+    for f in frames:
+        out[(f[1], f[2], f[3])].append(f[4])
+    return out
+
+
+def test_the_centre_channel_carries_the_host_firmwares_bytes(tmp_path, simavr_pair, capsys):
+    """The same frames as --program firmware on every wire, in order; on the centre channel
+    each module's answer comes within a tick (plus the baud drift) of where the host build
+    puts it after the PC's frame before it. The planner answers each frame as it arrives, so
+    absolute times carry the differences of the exchanges before."""
+    host = _run(tmp_path, "firmware", "--program", "firmware")
+    assert "complete: goal reached" in capsys.readouterr().out
+    assert _wires(simavr_pair) == _wires(host)
+    centre = [[f for f in run if f[1] in ("centre", "pc")] for run in (host, simavr_pair)]
+    assert [(f[2], f[4]) for f in centre[0]] == [(f[2], f[4]) for f in centre[1]]
+    last_pc, answers = None, 0
+    for i, (a, b) in enumerate(zip(*centre)):
+        if a[1] == "pc":
+            last_pc = i
+        elif last_pc is not None:
+            gap_host = a[0] - centre[0][last_pc][0]
+            gap_simavr = b[0] - centre[1][last_pc][0]
+            assert abs(gap_simavr - gap_host) < TICK_NS + BAUD_DRIFT_NS, (i, a, b)
+            answers += 1
+    assert answers >= 10
+
+
+def test_two_runs_give_the_same_frames_at_the_same_times(tmp_path, simavr_pair):
+    assert _run(tmp_path, "again", "--program", "simavr") == simavr_pair
+
+
+def test_a_scenario_module_runs_simavr_beside_the_model(tmp_path, capsys):
+    """``program = "simavr"`` on one module of a scenario file: it runs beside a Python one."""
+    text = (ROOT / "bus/scenarios/pair.toml").read_text()
+    scenario = tmp_path / "mixed.toml"
+    scenario.write_text(text.replace("cell = [1, 0]\nid = 2", 'cell = [1, 0]\nid = 2\nprogram = "simavr"'))
+    frames = _run(tmp_path, "mixed", scenario=str(scenario))
+    assert "complete: goal reached" in capsys.readouterr().out
+    assert any(f[2] == "m2.comm" for f in frames)
+
+
+def test_two_shards_give_the_one_process_frames(tmp_path, simavr_pair):
+    """Simavr modules in shard processes, on the lockstep clock: the one-process frames (the
+    optical switches reach the pins at a fixed delay, whatever the lookahead)."""
+    out = tmp_path / "sharded.mcap"
+    r = subprocess.run([sys.executable, "-m", "hexbench", "run", "pair", "--planner", "complete",
+                        "--clock", "virtual", "--program", "simavr", "--shards", "2",
+                        "--fleet", f"simavr-shards-{id(tmp_path)}", "--record", str(out)],
+                       cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    assert "complete: goal reached" in r.stdout
+    got = sorted((e.sim_time_ns, e.link, e.src, e.dst, e.raw, e.kind, e.channel)
+                 for e in read_frames(out))
+    assert got == simavr_pair
+
+
+def test_a_missing_image_is_one_line(monkeypatch, capsys):
+    import module_sim.simavr as simavr
+
+    monkeypatch.setattr(simavr, "build_path", lambda kind, board, profile: Path(f"/nonexistent/{board}.elf"))
+    monkeypatch.setattr(simavr, "ensure_built", lambda: None)
+    assert main(["run", "pair", "--planner", "complete", "--clock", "virtual", "--isolated",
+                 "--program", "simavr"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["hexbench run: error: m1 (simavr): cannot read the comm image /nonexistent/comm.elf: "
+                   "No such file or directory"]
+
+
+def test_a_library_that_does_not_load_is_one_line(monkeypatch, tmp_path, capsys):
+    """What a missing libsimavr looks like to ctypes: the library does not load."""
+    import module_sim.simavr as simavr
+
+    (tmp_path / simavr.LIB_NAME).write_bytes(b"not a shared object")
+    monkeypatch.setattr(simavr, "BUILD_DIR", tmp_path)
+    monkeypatch.setattr(simavr, "_lib", None)
+    assert main(["run", "pair", "--planner", "complete", "--clock", "virtual", "--isolated",
+                 "--program", "simavr"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"hexbench run: error: cannot load {tmp_path}/"), err
+    assert "install simavr" in err[0]
