@@ -31,15 +31,12 @@ import ctypes
 import heapq
 import json
 import weakref
-from typing import TYPE_CHECKING
+from typing import Any
 
 from bus.cheader import BUILD_DIR, F_CPU, FirmwareError, build_path, ensure_built, ubrr
 from bus.codec import Link
 from bus.pins import DIP_PORT, PORTS, dip_id
 from bus.timing import BITS_PER_BYTE, NS_PER_S, Baud, byte_time_ns
-
-if TYPE_CHECKING:
-    from .module import VirtualModule
 
 NS_PER_CYCLE = NS_PER_S // F_CPU
 #: The chip's IR byte: ten bits at the UBRR-exact rate (33.28 ms at 300 baud nominal).
@@ -115,7 +112,9 @@ class SimavrDriver:
     """Both boards of ``module`` as the images of its profile in simavr. Made with the module
     (a missing image or library fails there, before the run); :meth:`power_up` starts it."""
 
-    def __init__(self, module: "VirtualModule") -> None:
+    def __init__(self, module: Any) -> None:
+        """``module``: the :class:`~module_sim.module.VirtualModule` (not imported: it imports
+        this module)."""
         self.module = module
         self.clock = module.bus.clock
         lib = self.lib = library()
