@@ -7,14 +7,14 @@
  * the IR multiplexer, the control board's UART1 to the debug terminal), PORTx changes,
  * receiver overruns (hbl_events).
  *
- * Within a module the two cores run in lockstep (the one behind steps next; a heartbeat
- * bounds how far SLEEP jumps, so they stay within HEARTBEAT cycles, well inside the 2080
- * cycles of a UART0 frame) and their UART0s are wired here, with the harness's receiver
- * model: one frame at a time, RXC at the end of the frame, two bytes in the FIFO and one in
- * the shift register, the next start bit overruns (DOR). What the comm board's UART1
- * receives is the caller's (the IR medium and the multiplexer gate are module_sim's). */
+ * The module itself is the harness's (module.c): the two cores in lockstep (the one behind
+ * steps next; a heartbeat bounds how far SLEEP jumps, so they stay within HEARTBEAT cycles,
+ * well inside the 2080 cycles of a UART0 frame), their UART0s wired together, and the
+ * receiver model (receiver.c): one frame at a time, RXC at the end of the frame, two bytes in
+ * the FIFO and one in the shift register, the next start bit overruns (DOR). What the comm
+ * board's UART1 receives is the caller's (the IR medium and the multiplexer gate are
+ * module_sim's). */
 #define _GNU_SOURCE
-#include <errno.h>
 #include <stdarg.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -22,25 +22,16 @@
 #include <string.h>
 
 #include "sim_avr.h"
-#include "sim_elf.h"
 #include "sim_cycle_timers.h"
-#include "sim_interrupts.h"
-#include "sim_regbit.h"
-#include "avr_eeprom.h"
 #include "avr_ioport.h"
 #include "avr_uart.h"
 #include "atmega162.h"
 #include "hexbot_pins.h"
+#include "module.h"
 
 #define HBL_ABI 1
-#define F_CPU 1000000ULL
 #define HEARTBEAT 512		/* longest SLEEP jump, in cycles (a UART0 frame is 2080) */
-#define LINE_MAX_QUEUE 65536
-#define FLASH_SIZE 16384
 #define PENDING_SWITCHES 16
-
-enum { COMM, CONTROL };
-static const char *const BOARD[2] = { "comm", "control" };
 
 enum { EV_TX = 1, EV_PORT = 2, EV_OVERRUN = 3, EV_HALT = 4 };
 
@@ -53,29 +44,6 @@ typedef struct hbl_event {
 
 typedef struct hbl_module hbl_module_t;
 
-typedef struct board {
-	hbl_module_t *m;
-	int id;
-	avr_t *avr;
-	int halted;
-	uint8_t port[5];	/* last reported PORTx values */
-} board_t;
-
-enum { F_WAIT, F_SHIFT, F_HELD };
-typedef struct frame {
-	uint8_t value, state;
-	avr_cycle_count_t start, end, bit;
-} frame_t;
-
-typedef struct line {		/* the wire into one USART receiver */
-	board_t *rx;
-	int n;
-	frame_t *q;
-	size_t cap, head, len;
-	avr_cycle_count_t busy, last_end;
-	unsigned long overruns, rx_off, full;
-} line_t;
-
 typedef struct tx_ctx {
 	hbl_module_t *m;
 	int id, n;
@@ -87,9 +55,7 @@ typedef struct port_ctx {
 } port_ctx_t;
 
 struct hbl_module {
-	board_t boards[2];
-	line_t lines[2][2];		/* [board][usart] */
-	avr_cycle_count_t tx_busy[2][2];
+	module_t mod;		/* the two cores and their wires (module.h) */
 	tx_ctx_t tx_ctx[2][2];
 	port_ctx_t port_ctx[2][5];
 	struct { avr_cycle_count_t at; uint8_t mask; } pending[PENDING_SWITCHES];
@@ -99,15 +65,12 @@ struct hbl_module {
 	char error[256];
 };
 
-/* --- errors and simavr's own messages ----------------------------------------------- */
-
-static void set_error(hbl_module_t *m, const char *fmt, ...)
+void hexbot_out_of_memory(void)
 {
-	va_list ap;
-	va_start(ap, fmt);
-	vsnprintf(m->error, sizeof m->error, fmt, ap);
-	va_end(ap);
+	abort();
 }
+
+/* --- errors and simavr's own messages ----------------------------------------------- */
 
 static void quiet_logger(avr_t *avr, const int level, const char *fmt, va_list ap)
 {
@@ -139,215 +102,32 @@ static void event(hbl_module_t *m, avr_cycle_count_t t, int kind, int board, int
 				      (uint8_t)value, frame };
 }
 
-/* --- lines: frames into a USART receiver (hexbot_simavr.c's model) ------------------- */
-
-static unsigned fifo_count(avr_uart_t *p)
-{
-	return (unsigned)(p->input.write + uart_fifo_fifo_size - p->input.read) &
-	       (uart_fifo_fifo_size - 1);
-}
-
-static void line_service(line_t *l);
-
-static avr_cycle_count_t line_timer(avr_t *avr, avr_cycle_count_t when, void *param)
-{
-	(void)avr;
-	(void)when;
-	line_service(param);
-	return 0;
-}
-
-static void line_pop(line_t *l)
-{
-	l->head = (l->head + 1) % l->cap;
-	l->len--;
-}
-
-static void line_deliver(line_t *l, frame_t *f)
-{
-	avr_t *avr = l->rx->avr;
-	avr_uart_t *p = atmega162_uart(avr, l->n);
-	if (!avr_regbit_get(avr, p->rxen)) {
-		l->rx_off++;
-		return;
-	}
-	avr_cycle_count_t rx_bit = atmega162_uart_bit_cycles(avr, l->n);
-	avr_cycle_count_t diff = rx_bit > f->bit ? rx_bit - f->bit : f->bit - rx_bit;
-	uint32_t v = f->value | (diff * 25 > f->bit ? UART_INPUT_FE : 0);
-	avr_raise_irq(p->io.irq + UART_IRQ_INPUT, v);
-	l->last_end = f->end;
-}
-
-static void line_service(line_t *l)
-{
-	avr_t *avr = l->rx->avr;
-	avr_uart_t *p = atmega162_uart(avr, l->n);
-	avr_cycle_count_t now = avr->cycle, wake = 0;
-
-	while (l->len && !wake) {
-		frame_t *f = &l->q[l->head];
-		unsigned n = fifo_count(p);
-		if (f->state == F_WAIT) {
-			if (now < f->start) {
-				wake = f->start;
-				break;
-			}
-			f->state = F_SHIFT;
-		}
-		if (f->state == F_SHIFT) {
-			if (!n) {
-				/* simavr raises RXC one of its frames after the input: time it
-				 * so that lands on the end of this frame */
-				avr_cycle_count_t t = f->end > p->cycles_per_byte ?
-						      f->end - p->cycles_per_byte : 0;
-				if (t < f->start)
-					t = f->start;
-				if (now < t) {
-					wake = t;
-					break;
-				}
-				line_deliver(l, f);
-				line_pop(l);
-				continue;
-			}
-			if (now < f->end) {
-				wake = f->end;
-				break;
-			}
-			f->state = F_HELD;
-		}
-		/* F_HELD: complete, in the shift register until the buffer has room */
-		if (n < 2) {
-			line_deliver(l, f);
-			line_pop(l);
-			continue;
-		}
-		frame_t *next = l->len > 1 ? &l->q[(l->head + 1) % l->cap] : NULL;
-		if (next && now >= next->start) {
-			l->overruns++;
-			avr_regbit_setto(avr, p->dor, 1);
-			event(l->rx->m, next->start, EV_OVERRUN, l->rx->id, l->n, f->value, 0);
-			line_pop(l);
-			continue;
-		}
-		wake = next ? next->start : 0;	/* else a read of UDR calls us */
-		break;
-	}
-
-	unsigned n = fifo_count(p);
-	if (n && !avr_regbit_get(avr, p->rxc.raised)) {
-		avr_cycle_count_t due = n >= 2 || l->last_end <= now ? now : l->last_end;
-		if (due <= now)
-			avr_raise_interrupt(avr, &p->rxc);
-		else if (!wake || due < wake)
-			wake = due;
-	}
-	if (wake)
-		avr_cycle_timer_register(avr, wake - now, line_timer, l);
-	else
-		avr_cycle_timer_cancel(avr, line_timer, l);
-}
-
-static void line_push(line_t *l, uint8_t value, avr_cycle_count_t at,
-		      avr_cycle_count_t frame, avr_cycle_count_t bit)
-{
-	if (l->len >= LINE_MAX_QUEUE) {
-		l->full++;
-		return;
-	}
-	if (l->len == l->cap) {
-		size_t cap = l->cap ? 2 * l->cap : 64;
-		frame_t *q = malloc(cap * sizeof *q);
-		if (!q)
-			abort();
-		for (size_t i = 0; i < l->len; i++)
-			q[i] = l->q[(l->head + i) % l->cap];
-		free(l->q);
-		l->q = q;
-		l->cap = cap;
-		l->head = 0;
-	}
-	avr_cycle_count_t start = at > l->busy ? at : l->busy;
-	l->busy = start + frame;
-	l->q[(l->head + l->len++) % l->cap] = (frame_t){ value, F_WAIT, start, start + frame, bit };
-	line_service(l);
-}
-
-static void on_udr_read(avr_t *avr, avr_io_addr_t addr, uint8_t v, void *param)
-{
-	(void)avr;
-	(void)addr;
-	(void)v;
-	line_service(param);
-}
-
 /* --- what the boards do ------------------------------------------------------------- */
+
+static void on_overrun(line_t *l, avr_cycle_count_t at, uint8_t lost)
+{
+	event(l->owner, at, EV_OVERRUN, l->board, l->n, lost, 0);
+}
 
 /* The core raises UART_IRQ_OUTPUT when a byte's start bit begins (atmega162.c). */
 static void on_tx(avr_irq_t *irq, uint32_t value, void *param)
 {
 	(void)irq;
 	tx_ctx_t *c = param;
-	hbl_module_t *m = c->m;
-	avr_t *avr = m->boards[c->id].avr;
-	avr_cycle_count_t now = avr->cycle, frame = atmega162_uart_frame_cycles(avr, c->n);
-	avr_cycle_count_t start = now > m->tx_busy[c->id][c->n] ? now : m->tx_busy[c->id][c->n];
-	uint8_t b = value & 0xFF;
-	m->tx_busy[c->id][c->n] = start + frame;
-	if (c->n == 0)
-		line_push(&m->lines[!c->id][0], b, start, frame, atmega162_uart_bit_cycles(avr, 0));
-	event(m, start, EV_TX, c->id, c->n, b, (uint32_t)frame);
+	avr_cycle_count_t frame;
+	avr_cycle_count_t start = module_tx(&c->m->mod, c->id, c->n, value & 0xFF, &frame);
+	event(c->m, start, EV_TX, c->id, c->n, value & 0xFF, (uint32_t)frame);
 }
 
 static void on_port(avr_irq_t *irq, uint32_t value, void *param)
 {
 	(void)irq;
 	port_ctx_t *c = param;
-	board_t *b = &c->m->boards[c->id];
+	board_t *b = &c->m->mod.boards[c->id];
 	if (b->port[c->port] == (uint8_t)value)
 		return;
 	b->port[c->port] = (uint8_t)value;
 	event(c->m, b->avr->cycle, EV_PORT, c->id, c->port, value & 0xFF, 0);
-}
-
-static avr_cycle_count_t heartbeat(avr_t *avr, avr_cycle_count_t when, void *param)
-{
-	(void)avr;
-	(void)param;
-	return when + HEARTBEAT;
-}
-
-/* --- inputs ------------------------------------------------------------------------- */
-
-static void set_inputs(avr_t *avr, int port, uint8_t mask, uint8_t value)
-{
-	char name = 'A' + port;
-	avr_ioport_external_t e = { .name = name, .mask = mask, .value = value };
-	avr_ioctl(avr, AVR_IOCTL_IOPORT_SET_EXTERNAL(name), &e);
-	for (int i = 0; i < 8; i++)
-		if (mask & (1 << i))
-			avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(name), i),
-				      (value >> i) & 1);
-}
-
-/* Bit k-1 of `switches`: a neighbour on side k, which pulls that pin to the active level. */
-static void set_switches(avr_t *avr, int switches)
-{
-	uint8_t mask[5] = { 0 }, value[5] = { 0 };
-	for (int k = 1; k <= 6; k++) {
-		int closed = (switches >> (k - 1)) & 1;
-		mask[PINS_SWITCH_PORTS[k]] |= PINS_SWITCH_MASKS[k];
-		if (closed != PINS_SWITCH_ACTIVE_LOW)
-			value[PINS_SWITCH_PORTS[k]] |= PINS_SWITCH_MASKS[k];
-	}
-	for (int p = 0; p < 5; p++)
-		if (mask[p])
-			set_inputs(avr, p, mask[p], value[p]);
-}
-
-static void set_dip(avr_t *avr, int dip)
-{
-	set_inputs(avr, PINS_DIP_PORT, 0xFF, (uint8_t)(PINS_DIP_ACTIVE_LOW ? ~dip : dip));
 }
 
 static avr_cycle_count_t switches_timer(avr_t *avr, avr_cycle_count_t when, void *param)
@@ -355,7 +135,7 @@ static avr_cycle_count_t switches_timer(avr_t *avr, avr_cycle_count_t when, void
 	hbl_module_t *m = param;
 	size_t i = 0;
 	for (; i < m->npending && m->pending[i].at <= when; i++)
-		set_switches(avr, m->pending[i].mask);
+		module_set_switches(avr, m->pending[i].mask);
 	memmove(m->pending, m->pending + i, (m->npending - i) * sizeof m->pending[0]);
 	m->npending -= i;
 	return m->npending ? m->pending[0].at : 0;
@@ -363,78 +143,27 @@ static avr_cycle_count_t switches_timer(avr_t *avr, avr_cycle_count_t when, void
 
 /* --- set-up ------------------------------------------------------------------------- */
 
-static int load_elf(hbl_module_t *m, board_t *b, const char *path)
-{
-	unsigned char h[20];
-	FILE *f = fopen(path, "rb");
-	if (!f) {
-		set_error(m, "cannot read the %s image %s: %s", BOARD[b->id], path, strerror(errno));
-		return -1;
-	}
-	size_t n = fread(h, 1, sizeof h, f);
-	fclose(f);
-	if (n < sizeof h || memcmp(h, "\177ELF", 4) || h[4] != 1 || h[5] != 1 || h[18] != 83 ||
-	    h[19] != 0) {
-		set_error(m, "%s is not an AVR ELF (%s board)", path, BOARD[b->id]);
-		return -1;
-	}
-	elf_firmware_t fw;
-	memset(&fw, 0, sizeof fw);
-	if (elf_read_firmware(path, &fw) != 0 || !fw.flashsize) {
-		set_error(m, "cannot load %s (%s board)", path, BOARD[b->id]);
-		return -1;
-	}
-	if (fw.flashbase + fw.flashsize > FLASH_SIZE) {
-		set_error(m, "%s needs %u bytes of flash, the ATmega162 has %d", path,
-			  fw.flashbase + fw.flashsize, FLASH_SIZE);
-		return -1;
-	}
-	if (fw.mmcu[0] && strcmp(fw.mmcu, "atmega162")) {
-		set_error(m, "%s is built for %s, not atmega162", path, fw.mmcu);
-		return -1;
-	}
-	avr_load_firmware(b->avr, &fw);
-	b->avr->frequency = F_CPU;
-	return 0;
-}
-
-static void set_board_record(avr_t *avr, int kind)
-{
-	uint8_t rec[4] = { BOARD_RECORD_MAGIC0, BOARD_RECORD_MAGIC1, (uint8_t)kind,
-			   (uint8_t)(kind ^ 0xFF) };
-	avr_eeprom_desc_t d = { .ee = rec, .offset = BOARD_RECORD_ADDR, .size = sizeof rec };
-	avr_ioctl(avr, AVR_IOCTL_EEPROM_SET, &d);
-}
-
 static int board_setup(hbl_module_t *m, int id, const char *elf)
 {
-	board_t *b = &m->boards[id];
-	b->m = m;
-	b->id = id;
-	b->avr = atmega162_new();
-	if (!b->avr) {
-		set_error(m, "out of memory");
+	char what[32];
+	snprintf(what, sizeof what, "the %s image", BOARD[id]);
+	if (module_board(&m->mod, id, elf, what, id == COMM ? BOARD_KIND_COMM : BOARD_KIND_CONTROL,
+			 HEARTBEAT, m->error, sizeof m->error))
 		return -1;
-	}
-	if (load_elf(m, b, elf))
-		return -1;
-	avr_t *avr = b->avr;
-	set_board_record(avr, id == COMM ? BOARD_KIND_COMM : BOARD_KIND_CONTROL);
+	avr_t *avr = m->mod.boards[id].avr;
 	for (int n = 0; n < 2; n++) {
-		line_t *l = &m->lines[id][n];
-		l->rx = b;
-		l->n = n;
+		line_t *l = &m->mod.lines[id][n];
+		l->overrun = on_overrun;
+		l->owner = m;
 		m->tx_ctx[id][n] = (tx_ctx_t){ m, id, n };
 		avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0' + n),
 						      UART_IRQ_OUTPUT), on_tx, &m->tx_ctx[id][n]);
-		atmega162_after_read(avr, n ? M162_UDR1 : M162_UDR0, on_udr_read, l);
 	}
 	for (int p = 0; p < 5; p++) {
 		m->port_ctx[id][p] = (port_ctx_t){ m, id, p };
 		avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('A' + p),
 						      IOPORT_IRQ_REG_PORT), on_port, &m->port_ctx[id][p]);
 	}
-	avr_cycle_timer_register(avr, HEARTBEAT, heartbeat, NULL);
 	return 0;
 }
 
@@ -448,14 +177,7 @@ void hbl_free(hbl_module_t *m)
 {
 	if (!m)
 		return;
-	for (int id = 0; id < 2; id++) {
-		if (m->boards[id].avr) {
-			avr_terminate(m->boards[id].avr);
-			free(m->boards[id].avr);
-		}
-		for (int n = 0; n < 2; n++)
-			free(m->lines[id][n].q);
-	}
+	module_free(&m->mod);
 	free(m->events);
 	free(m);
 }
@@ -480,8 +202,8 @@ hbl_module_t *hbl_new(const char *comm_elf, const char *control_elf, int dip, in
 		hbl_free(m);
 		return NULL;
 	}
-	set_dip(m->boards[CONTROL].avr, dip);
-	set_switches(m->boards[COMM].avr, switches);
+	module_set_dip(m->mod.boards[CONTROL].avr, dip);
+	module_set_switches(m->mod.boards[COMM].avr, switches);
 	return m;
 }
 
@@ -490,13 +212,11 @@ const char *hbl_error(hbl_module_t *m) { return m->error; }
 /* The module's time: the cycle the core behind has reached. */
 uint64_t hbl_now(hbl_module_t *m)
 {
-	avr_cycle_count_t t = ~(avr_cycle_count_t)0;
-	for (int i = 0; i < 2; i++)
-		if (!m->boards[i].halted && m->boards[i].avr->cycle < t)
-			t = m->boards[i].avr->cycle;
-	if (t == ~(avr_cycle_count_t)0)	/* both halted: the later one's time */
-		t = m->boards[0].avr->cycle > m->boards[1].avr->cycle ? m->boards[0].avr->cycle :
-									  m->boards[1].avr->cycle;
+	avr_cycle_count_t t = module_now(&m->mod);
+	if (t == ~(avr_cycle_count_t)0) {	/* both halted: the later one's time */
+		avr_t *a = m->mod.boards[0].avr, *b = m->mod.boards[1].avr;
+		t = a->cycle > b->cycle ? a->cycle : b->cycle;
+	}
 	return t;
 }
 
@@ -504,32 +224,17 @@ uint64_t hbl_now(hbl_module_t *m)
  * (hbl_error names it); a core that sleeps with interrupts off halts (an EV_HALT event). */
 int hbl_run(hbl_module_t *m, uint64_t until)
 {
-	for (;;) {
-		board_t *b = NULL;
-		for (int i = 0; i < 2; i++)
-			if (!m->boards[i].halted &&
-			    (!b || m->boards[i].avr->cycle < b->avr->cycle))
-				b = &m->boards[i];
-		if (!b || b->avr->cycle >= until)
-			return 0;
-		avr_flashaddr_t pc = b->avr->pc;
-		int state = avr_run(b->avr);
-		if (state == cpu_Done) {
-			b->halted = 1;
-			event(m, b->avr->cycle, EV_HALT, b->id, 0, 0, 0);
-		} else if (state == cpu_Crashed || state == cpu_Stopped) {
-			b->halted = 1;
-			set_error(m, "%s board crashed at PC 0x%04x (byte address) after %.6f s",
-				  BOARD[b->id], pc, b->avr->cycle / (double)F_CPU);
-			return -1;
-		}
-	}
+	board_t *b;
+	int r;
+	while ((r = module_run(&m->mod, until, &b, m->error, sizeof m->error)) > 0)
+		event(m, b->avr->cycle, EV_HALT, b->id, 0, 0, 0);
+	return r;
 }
 
 /* Stop a board for good (a test's board that never answers). */
 void hbl_halt(hbl_module_t *m, int board)
 {
-	m->boards[board ? 1 : 0].halted = 1;
+	m->mod.boards[board ? 1 : 0].halted = 1;
 }
 
 /* A byte into USART `uart` of `board` that ended (its stop bit) at cycle `end`, sent with
@@ -537,16 +242,16 @@ void hbl_halt(hbl_module_t *m, int board)
 void hbl_rx(hbl_module_t *m, int board, int uart, uint8_t byte, uint64_t end, uint32_t frame,
 	    uint32_t bit)
 {
-	line_t *l = &m->lines[board ? 1 : 0][uart ? 1 : 0];
+	line_t *l = &m->mod.lines[board ? 1 : 0][uart ? 1 : 0];
 	line_push(l, byte, end > frame ? end - frame : 0, frame, bit);
 }
 
 /* The optical switches become `switches` at cycle `at` (at once if the comm core is past it). */
 int hbl_switches_at(hbl_module_t *m, int switches, uint64_t at)
 {
-	avr_t *avr = m->boards[COMM].avr;
+	avr_t *avr = m->mod.boards[COMM].avr;
 	if (at <= avr->cycle) {
-		set_switches(avr, switches);
+		module_set_switches(avr, switches);
 		return 0;
 	}
 	if (m->npending == PENDING_SWITCHES)
@@ -577,12 +282,12 @@ size_t hbl_take(hbl_module_t *m, uint64_t upto, hbl_event_t *out, size_t max)
 /* Frame and bit length of a USART, in cycles (from its UBRR, U2X and UCSRC). */
 uint32_t hbl_frame_cycles(hbl_module_t *m, int board, int uart)
 {
-	return (uint32_t)atmega162_uart_frame_cycles(m->boards[board ? 1 : 0].avr, uart);
+	return (uint32_t)atmega162_uart_frame_cycles(m->mod.boards[board ? 1 : 0].avr, uart);
 }
 
 uint32_t hbl_bit_cycles(hbl_module_t *m, int board, int uart)
 {
-	return (uint32_t)atmega162_uart_bit_cycles(m->boards[board ? 1 : 0].avr, uart);
+	return (uint32_t)atmega162_uart_bit_cycles(m->mod.boards[board ? 1 : 0].avr, uart);
 }
 
 /* Receiver counters: overruns, bytes lost with the receiver off or the line full. */
@@ -590,6 +295,6 @@ unsigned long hbl_overruns(hbl_module_t *m)
 {
 	unsigned long n = 0;
 	for (int i = 0; i < 4; i++)
-		n += m->lines[i / 2][i % 2].overruns;
+		n += m->mod.lines[i / 2][i % 2].overruns;
 	return n;
 }

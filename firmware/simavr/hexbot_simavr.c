@@ -6,10 +6,13 @@
  * comm USART1 -> IR multiplexer -> centre transceiver -> IR pseudo-terminal (300 Bd);
  * control USART1 <-> debug pseudo-terminal.
  *
- * Every byte into a USART travels as a frame on a "line": it starts when the sender's
- * wire is free, ends one frame later, and RXC rises at its end.  The receiver holds two
- * bytes plus one in the shift register; a fourth start bit loses the shifted one (DOR),
- * as on the chip.  simavr 1.6's own 64-byte input FIFO is never used past that. */
+ * Every byte into a USART travels as a frame on a "line" (receiver.c): it starts when the
+ * sender's wire is free, ends one frame later, and RXC rises at its end.  The receiver
+ * holds two bytes plus one in the shift register; a fourth start bit loses the shifted one
+ * (DOR), as on the chip.  simavr 1.6's own 64-byte input FIFO is never used past that.  The
+ * module (the cores, their images and pins, the wires, the lockstep) is module.c, which
+ * the library (hexbot_lib.c) shares; the IR multiplexer's gate, the ptys, the scripts and
+ * the log are the harness's own. */
 #define _GNU_SOURCE
 #include <errno.h>
 #include <fcntl.h>
@@ -27,53 +30,20 @@
 #include <unistd.h>
 
 #include "sim_avr.h"
-#include "sim_elf.h"
 #include "sim_cycle_timers.h"
 #include "sim_interrupts.h"
-#include "sim_regbit.h"
-#include "avr_eeprom.h"
 #include "avr_ioport.h"
 #include "avr_uart.h"
 #include "atmega162.h"
 #include "hexbot_pins.h"
+#include "module.h"
 
-#define F_CPU 1000000ULL
 #define NS_PER_CYCLE (1000000000ULL / F_CPU)
 #define SLICE 1000		/* cycles between pacing checks and pty polls (1 ms) */
 #define HEARTBEAT 64		/* longest SLEEP jump, in cycles */
 #define BEHIND_WARN_NS 100000000ULL
 #define IR_PC_BAUD 300		/* the PC's side of the IR link */
 #define DEBUG_PC_BAUD 4800	/* the PC's side of the debug link */
-#define LINE_MAX_QUEUE 65536	/* bytes waiting to go onto one wire */
-#define FLASH_SIZE 16384
-
-enum { COMM, CONTROL };
-static const char *const BOARD[2] = { "comm", "control" };
-
-typedef struct board {
-	int id;
-	avr_t *avr;
-	int halted;
-	uint8_t port[5];	/* last logged PORTx values */
-	uint8_t ddr[5];		/* ... and DDRx (--trace ddr) */
-} board_t;
-
-enum { F_WAIT, F_SHIFT, F_HELD };
-typedef struct frame {
-	uint8_t value, state;
-	avr_cycle_count_t start, end, bit;	/* bit: the sender's bit time */
-} frame_t;
-
-typedef struct line {		/* the wire into one USART receiver */
-	board_t *rx;
-	int n;			/* USART number on rx */
-	int ir;			/* gated by the comm board's IR multiplexer */
-	frame_t *q;
-	size_t cap, head, len;
-	avr_cycle_count_t busy;		/* the wire carries a frame until then */
-	avr_cycle_count_t last_end;	/* end of the frame last handed to simavr */
-	unsigned long overruns, gated, rx_off, full;
-} line_t;
 
 typedef struct pty {
 	const char *link;
@@ -100,9 +70,7 @@ static struct {
 	double seconds;
 } opt = { .record = { BOARD_KIND_COMM, BOARD_KIND_CONTROL } };
 
-static board_t boards[2];
-static line_t lines[2][2];		/* [board][usart] */
-static avr_cycle_count_t tx_busy[2][2];	/* each transmitter's wire */
+static module_t mod;			/* the two cores and their wires (module.h) */
 static pty_t ir_pty = { .fd = -1, .baud = IR_PC_BAUD };
 static pty_t debug_pty = { .fd = -1, .baud = DEBUG_PC_BAUD };
 static FILE *logfp;
@@ -145,11 +113,16 @@ static void die(int code, const char *fmt, ...)
 	exit(code);
 }
 
+void hexbot_out_of_memory(void)
+{
+	die(1, "out of memory");
+}
+
 static void *xrealloc(void *p, size_t n)
 {
 	p = realloc(p, n);
 	if (!p)
-		die(1, "out of memory");
+		hexbot_out_of_memory();
 	return p;
 }
 
@@ -161,15 +134,6 @@ static void quiet_logger(avr_t *avr, const int level, const char *fmt, va_list a
 		return;
 	fputs("hexbot-simavr: simavr: ", stderr);
 	vfprintf(stderr, fmt, ap);
-}
-
-static avr_cycle_count_t now_global(void)
-{
-	avr_cycle_count_t t = ~(avr_cycle_count_t)0;
-	for (int i = 0; i < 2; i++)
-		if (!boards[i].halted && boards[i].avr->cycle < t)
-			t = boards[i].avr->cycle;
-	return t;
 }
 
 /* --- the event log: kept sorted, written once both cores have passed it ----------- */
@@ -211,171 +175,28 @@ static int ir_mux_last = -1;
 
 static int ir_channel(void)
 {
-	uint8_t a = boards[COMM].avr->data[atmega162_port_addr('A' + PINS_IR_MUX_PORT)];
+	uint8_t a = mod.boards[COMM].avr->data[atmega162_port_addr('A' + PINS_IR_MUX_PORT)];
 	return ((a >> PINS_IR_MUX_A) & 1) + 2 * ((a >> PINS_IR_MUX_B) & 1) +
 	       4 * ((a >> PINS_IR_MUX_C) & 1);
 }
 
-/* --- lines: frames into a USART receiver ---------------------------------------------- */
+/* --- lines (receiver.c): what is the harness's own ------------------------------------ */
 
-static unsigned fifo_count(avr_uart_t *p)
+/* IR: a byte counts only if the multiplexer is on the centre at its start bit and stayed
+ * there for all of it (the model's rule, docs/protocol.md). */
+static int ir_gate(line_t *l, const frame_t *f, int whole)
 {
-	return (unsigned)(p->input.write + uart_fifo_fifo_size - p->input.read) &
-	       (uart_fifo_fifo_size - 1);
+	(void)l;
+	if ((whole && ir_mux_at > f->start) || ir_channel() != PINS_IR_CENTRE) {
+		event(f->start, "irdrop %02x %d", f->value, ir_channel());
+		return 0;
+	}
+	return 1;
 }
 
-static void line_service(line_t *l);
-
-static avr_cycle_count_t line_timer(avr_t *avr, avr_cycle_count_t when, void *param)
+static void on_overrun(line_t *l, avr_cycle_count_t at, uint8_t lost)
 {
-	(void)avr;
-	(void)when;
-	line_service(param);
-	return 0;		/* line_service registers the next wake itself */
-}
-
-static void line_pop(line_t *l)
-{
-	l->head = (l->head + 1) % l->cap;
-	l->len--;
-}
-
-/* Hand a frame to simavr.  A sender whose bit time is more than 4 % off the receiver's
- * gives a framing error (the byte is passed on with FE set). */
-static void line_deliver(line_t *l, frame_t *f)
-{
-	avr_t *avr = l->rx->avr;
-	avr_uart_t *p = atmega162_uart(avr, l->n);
-	if (!avr_regbit_get(avr, p->rxen)) {
-		l->rx_off++;
-		return;
-	}
-	avr_cycle_count_t rx_bit = atmega162_uart_bit_cycles(avr, l->n);
-	avr_cycle_count_t diff = rx_bit > f->bit ? rx_bit - f->bit : f->bit - rx_bit;
-	uint32_t v = f->value | (diff * 25 > f->bit ? UART_INPUT_FE : 0);
-	avr_raise_irq(p->io.irq + UART_IRQ_INPUT, v);
-	l->last_end = f->end;
-}
-
-static void line_service(line_t *l)
-{
-	avr_t *avr = l->rx->avr;
-	avr_uart_t *p = atmega162_uart(avr, l->n);
-	avr_cycle_count_t now = avr->cycle, wake = 0;
-
-	while (l->len && !wake) {
-		frame_t *f = &l->q[l->head];
-		unsigned n = fifo_count(p);
-		if (f->state == F_WAIT) {
-			if (now < f->start) {
-				wake = f->start;
-				break;
-			}
-			if (l->ir && ir_channel() != PINS_IR_CENTRE) {
-				l->gated++;
-				event(f->start, "irdrop %02x %d", f->value, ir_channel());
-				line_pop(l);
-				continue;
-			}
-			f->state = F_SHIFT;
-		}
-		if (f->state == F_SHIFT && l->ir) {
-			/* IR: the byte counts only if the multiplexer stayed on the centre for
-			 * all of it (the model's rule, docs/protocol.md); decide at its end */
-			if (now < f->end) {
-				wake = f->end;
-				break;
-			}
-			if (ir_mux_at > f->start || ir_channel() != PINS_IR_CENTRE) {
-				l->gated++;
-				event(f->start, "irdrop %02x %d", f->value, ir_channel());
-				line_pop(l);
-				continue;
-			}
-			if (!n) {
-				line_deliver(l, f);
-				line_pop(l);
-				continue;
-			}
-			f->state = F_HELD;
-		}
-		if (f->state == F_SHIFT) {
-			if (!n) {
-				/* simavr raises RXC one of its frames after the input: time it
-				 * so that lands on the end of this frame */
-				avr_cycle_count_t t = f->end > p->cycles_per_byte ?
-						      f->end - p->cycles_per_byte : 0;
-				if (t < f->start)
-					t = f->start;
-				if (now < t) {
-					wake = t;
-					break;
-				}
-				line_deliver(l, f);
-				line_pop(l);
-				continue;
-			}
-			if (now < f->end) {
-				wake = f->end;
-				break;
-			}
-			f->state = F_HELD;
-		}
-		/* F_HELD: complete, in the shift register until the buffer has room */
-		if (n < 2) {
-			line_deliver(l, f);
-			line_pop(l);
-			continue;
-		}
-		frame_t *next = l->len > 1 ? &l->q[(l->head + 1) % l->cap] : NULL;
-		if (next && now >= next->start) {
-			l->overruns++;
-			avr_regbit_setto(avr, p->dor, 1);
-			event(next->start, "overrun %s %d %02x", BOARD[l->rx->id], l->n, f->value);
-			line_pop(l);
-			continue;
-		}
-		wake = next ? next->start : 0;	/* else a read of UDR calls us */
-		break;
-	}
-
-	/* RXC: up at the end of the newest byte, or at once for an older one (simavr may
-	 * have dropped it after two fast reads, or be about to raise it a frame late). */
-	unsigned n = fifo_count(p);
-	if (n && !avr_regbit_get(avr, p->rxc.raised)) {
-		avr_cycle_count_t due = n >= 2 || l->last_end <= now ? now : l->last_end;
-		if (due <= now)
-			avr_raise_interrupt(avr, &p->rxc);
-		else if (!wake || due < wake)
-			wake = due;
-	}
-	if (wake)
-		avr_cycle_timer_register(avr, wake - now, line_timer, l);
-	else
-		avr_cycle_timer_cancel(avr, line_timer, l);
-}
-
-static void line_push(line_t *l, uint8_t value, avr_cycle_count_t at,
-		      avr_cycle_count_t frame, avr_cycle_count_t bit)
-{
-	if (l->len >= LINE_MAX_QUEUE) {
-		l->full++;
-		return;
-	}
-	if (l->len == l->cap) {
-		size_t cap = l->cap ? 2 * l->cap : 64;
-		frame_t *q = xrealloc(NULL, cap * sizeof *q);
-		for (size_t i = 0; i < l->len; i++)
-			q[i] = l->q[(l->head + i) % l->cap];
-		free(l->q);
-		l->q = q;
-		l->cap = cap;
-		l->head = 0;
-	}
-	avr_cycle_count_t start = at > l->busy ? at : l->busy;
-	l->busy = start + frame;
-	l->q[(l->head + l->len++) % l->cap] = (frame_t){ value, F_WAIT, start, start + frame, bit };
-	line_service(l);	/* a new frame may be due now, or end a held one (overrun) */
+	event(at, "overrun %s %d %02x", BOARD[l->board], l->n, lost);
 }
 
 /* A byte from the PC side: it sends at its own nominal baud, 8N1. */
@@ -383,14 +204,6 @@ static void line_push_pc(line_t *l, uint8_t value, avr_cycle_count_t at, unsigne
 {
 	avr_cycle_count_t frame = (10 * F_CPU + baud / 2) / baud;
 	line_push(l, value, at, frame, (F_CPU + baud / 2) / baud);
-}
-
-static void on_udr_read(avr_t *avr, avr_io_addr_t addr, uint8_t v, void *param)
-{
-	(void)avr;
-	(void)addr;
-	(void)v;
-	line_service(param);
 }
 
 /* --- pseudo-terminals ------------------------------------------------------------- */
@@ -471,15 +284,13 @@ static void on_tx(avr_irq_t *irq, uint32_t value, void *param)
 {
 	(void)irq;
 	int id = (int)(intptr_t)param >> 1, n = (int)(intptr_t)param & 1;
-	avr_t *avr = boards[id].avr;
-	avr_cycle_count_t now = avr->cycle, frame = atmega162_uart_frame_cycles(avr, n);
-	avr_cycle_count_t start = now > tx_busy[id][n] ? now : tx_busy[id][n];
+	avr_cycle_count_t now = mod.boards[id].avr->cycle, frame;
 	uint8_t b = value & 0xFF;
-	tx_busy[id][n] = start + frame;
+	avr_cycle_count_t start = module_tx(&mod, id, n, b, &frame);	/* UART0: the other board */
 
-	if (n == 0) {
-		line_push(&lines[!id][0], b, start, frame, atmega162_uart_bit_cycles(avr, 0));
-	} else if (id == CONTROL) {
+	if (n == 0)
+		return;
+	if (id == CONTROL) {
 		event(now, "debug %02x", b);
 		pty_queue(&debug_pty, b, start + frame);
 	} else {
@@ -499,7 +310,7 @@ static void on_tx(avr_irq_t *irq, uint32_t value, void *param)
 static int log_register(const char *what, int ddr, void *param, uint32_t value)
 {
 	int id = (int)(intptr_t)param / 8, port = (int)(intptr_t)param % 8;
-	board_t *b = &boards[id];
+	board_t *b = &mod.boards[id];
 	uint8_t *last = ddr ? &b->ddr[port] : &b->port[port];
 	if (*last == (uint8_t)value)
 		return 0;
@@ -514,7 +325,7 @@ static void on_port(avr_irq_t *irq, uint32_t value, void *param)
 	if (log_register("port", 0, param, value) &&
 	    (intptr_t)param == COMM * 8 + PINS_IR_MUX_PORT && ir_channel() != ir_mux_last) {
 		ir_mux_last = ir_channel();
-		ir_mux_at = boards[COMM].avr->cycle;
+		ir_mux_at = mod.boards[COMM].avr->cycle;
 	}
 }
 
@@ -530,89 +341,28 @@ static void on_timer0(avr_irq_t *irq, uint32_t value, void *param)
 	(void)irq;
 	int id = (int)(intptr_t)param;
 	if (value)
-		event(boards[id].avr->cycle, "tick %s", BOARD[id]);
-}
-
-static avr_cycle_count_t heartbeat(avr_t *avr, avr_cycle_count_t when, void *param)
-{
-	(void)avr;
-	(void)param;
-	return when + HEARTBEAT;
+		event(mod.boards[id].avr->cycle, "tick %s", BOARD[id]);
 }
 
 /* --- setup ---------------------------------------------------------------------------- */
 
-/* One line and exit 2 for anything that is not a readable AVR ELF that fits. */
-static void load_elf(board_t *b, const char *path)
-{
-	unsigned char h[20];
-	FILE *f = fopen(path, "rb");
-	if (!f)
-		die(2, "cannot read %s ELF %s: %s", BOARD[b->id], path, strerror(errno));
-	size_t n = fread(h, 1, sizeof h, f);
-	fclose(f);
-	if (n < sizeof h || memcmp(h, "\177ELF", 4) || h[4] != 1 /* 32-bit */ ||
-	    h[5] != 1 /* little endian */ || h[18] != 83 || h[19] != 0 /* EM_AVR */)
-		die(2, "%s is not an AVR ELF (%s board)", path, BOARD[b->id]);
-
-	elf_firmware_t fw;
-	memset(&fw, 0, sizeof fw);
-	if (elf_read_firmware(path, &fw) != 0 || !fw.flashsize)
-		die(2, "cannot load %s (%s board)", path, BOARD[b->id]);
-	if (fw.flashbase + fw.flashsize > FLASH_SIZE)
-		die(2, "%s needs %u bytes of flash, the ATmega162 has %d", path,
-		    fw.flashbase + fw.flashsize, FLASH_SIZE);
-	if (fw.mmcu[0] && strcmp(fw.mmcu, "atmega162"))
-		die(2, "%s is built for %s, not atmega162", path, fw.mmcu);
-	avr_load_firmware(b->avr, &fw);
-	b->avr->frequency = F_CPU;	/* the boards' crystal, whatever the ELF says */
-}
-
-/* The board-kind record (bus/chip.py) at the start of the EEPROM, as `hexbench firmware
- * flash --board` writes it; kind 0 leaves those bytes erased. */
-static void set_board_record(avr_t *avr, int kind)
-{
-	uint8_t rec[4] = { 0xFF, 0xFF, 0xFF, 0xFF };
-	if (kind) {
-		rec[0] = BOARD_RECORD_MAGIC0;
-		rec[1] = BOARD_RECORD_MAGIC1;
-		rec[2] = (uint8_t)kind;
-		rec[3] = (uint8_t)(kind ^ 0xFF);
-	}
-	avr_eeprom_desc_t d = { .ee = rec, .offset = BOARD_RECORD_ADDR, .size = sizeof rec };
-	avr_ioctl(avr, AVR_IOCTL_EEPROM_SET, &d);
-}
-
-static void set_inputs(avr_t *avr, int port, uint8_t mask, uint8_t value)
-{
-	char name = 'A' + port;
-	avr_ioport_external_t e = { .name = name, .mask = mask, .value = value };
-	avr_ioctl(avr, AVR_IOCTL_IOPORT_SET_EXTERNAL(name), &e);
-	for (int i = 0; i < 8; i++)
-		if (mask & (1 << i))
-			avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(name), i),
-				      (value >> i) & 1);
-}
-
 static void board_setup(int id)
 {
-	board_t *b = &boards[id];
-	b->id = id;
-	b->avr = atmega162_new();
-	if (!b->avr)
-		die(1, "out of memory");
-	load_elf(b, opt.elf[id]);
-	avr_t *avr = b->avr;
-	set_board_record(avr, opt.record[id]);
+	char what[32], err[256];
+	snprintf(what, sizeof what, "%s ELF", BOARD[id]);
+	int r = module_board(&mod, id, opt.elf[id], what, opt.record[id], HEARTBEAT, err,
+			     sizeof err);
+	if (r)
+		die(r, "%s", err);
+	avr_t *avr = mod.boards[id].avr;
 	for (int n = 0; n < 2; n++) {
-		line_t *l = &lines[id][n];
-		l->rx = b;
-		l->n = n;
-		l->ir = id == COMM && n == 1;
+		line_t *l = &mod.lines[id][n];
+		l->overrun = on_overrun;
+		if (id == COMM && n == 1)
+			l->gate = ir_gate;	/* behind the IR multiplexer */
 		avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0' + n),
 						      UART_IRQ_OUTPUT),
 					on_tx, (void *)(intptr_t)(id << 1 | n));
-		atmega162_after_read(avr, n ? M162_UDR1 : M162_UDR0, on_udr_read, l);
 	}
 	for (int p = 0; p < 5; p++) {
 		avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('A' + p),
@@ -629,25 +379,10 @@ static void board_setup(int id)
 			avr_irq_register_notify(avr_get_interrupt_irq(avr, vectors[i]) +
 						AVR_INT_IRQ_RUNNING, on_timer0, (void *)(intptr_t)id);
 	}
-	avr_cycle_timer_register(avr, HEARTBEAT, heartbeat, NULL);
-
-	/* a closed switch pulls its pin to the active level; an open one leaves it to the
-	 * pull-up (high) or, active high, low */
-	if (id == CONTROL) {
-		uint8_t levels = (uint8_t)(PINS_DIP_ACTIVE_LOW ? ~opt.dip : opt.dip);
-		set_inputs(avr, PINS_DIP_PORT, 0xFF, levels);
-	} else {
-		uint8_t mask[5] = { 0 }, value[5] = { 0 };
-		for (int k = 1; k <= 6; k++) {
-			int closed = (opt.switches >> (k - 1)) & 1;
-			mask[PINS_SWITCH_PORTS[k]] |= PINS_SWITCH_MASKS[k];
-			if (closed != PINS_SWITCH_ACTIVE_LOW)
-				value[PINS_SWITCH_PORTS[k]] |= PINS_SWITCH_MASKS[k];
-		}
-		for (int p = 0; p < 5; p++)
-			if (mask[p])
-				set_inputs(avr, p, mask[p], value[p]);
-	}
+	if (id == CONTROL)
+		module_set_dip(avr, opt.dip);
+	else
+		module_set_switches(avr, opt.switches);
 }
 
 /* "<sim_time_ns> <hex bytes>" lines, '#' comments; bytes go onto the line in time order. */
@@ -712,24 +447,15 @@ static void load_script(const char *path, line_t *l, unsigned baud)
 
 static void step_until(avr_cycle_count_t target)
 {
-	for (;;) {
-		board_t *b = NULL;
-		for (int i = 0; i < 2; i++)
-			if (!boards[i].halted && (!b || boards[i].avr->cycle < b->avr->cycle))
-				b = &boards[i];
-		if (!b || b->avr->cycle >= target)
-			return;
-		avr_flashaddr_t pc = b->avr->pc;	/* the instruction this step executes */
-		int state = avr_run(b->avr);
-		if (state == cpu_Done) {
-			b->halted = 1;
-			fprintf(stderr, "hexbot-simavr: %s board halted (SLEEP with interrupts off)"
-				" at PC 0x%04x\n", BOARD[b->id], b->avr->pc);
-		} else if (state == cpu_Crashed || state == cpu_Stopped) {
-			flush_events(~(avr_cycle_count_t)0);
-			die(1, "%s board crashed at PC 0x%04x (byte address) after %.6f s",
-			    BOARD[b->id], pc, b->avr->cycle / (double)F_CPU);
-		}
+	board_t *b;
+	char err[256];
+	int r;
+	while ((r = module_run(&mod, target, &b, err, sizeof err)) > 0)
+		fprintf(stderr, "hexbot-simavr: %s board halted (SLEEP with interrupts off)"
+			" at PC 0x%04x\n", BOARD[b->id], b->avr->pc);
+	if (r < 0) {
+		flush_events(~(avr_cycle_count_t)0);
+		die(1, "%s", err);
 	}
 }
 
@@ -899,9 +625,9 @@ int main(int argc, char **argv)
 			setvbuf(logfp, NULL, _IOLBF, 0);	/* followable while it runs */
 	}
 	if (opt.ir_script)
-		load_script(opt.ir_script, &lines[COMM][1], IR_PC_BAUD);
+		load_script(opt.ir_script, &mod.lines[COMM][1], IR_PC_BAUD);
 	if (opt.debug_script)
-		load_script(opt.debug_script, &lines[CONTROL][1], DEBUG_PC_BAUD);
+		load_script(opt.debug_script, &mod.lines[CONTROL][1], DEBUG_PC_BAUD);
 
 	struct sigaction sa = { .sa_handler = on_signal };
 	sigemptyset(&sa.sa_mask);
@@ -910,9 +636,9 @@ int main(int argc, char **argv)
 
 	if (!opt.fast) {
 		ir_pty.link = opt.ir_link;
-		ir_pty.in = &lines[COMM][1];
+		ir_pty.in = &mod.lines[COMM][1];
 		debug_pty.link = opt.debug_link;
-		debug_pty.in = &lines[CONTROL][1];
+		debug_pty.in = &mod.lines[CONTROL][1];
 		pty_open(&ir_pty);
 		pty_open(&debug_pty);
 		printf("hexbot-simavr: ir=%s debug=%s\n", ir_pty.slave, debug_pty.slave);
@@ -938,11 +664,11 @@ int main(int argc, char **argv)
 			fprintf(stderr, "hexbot-simavr: the process that started us is gone; stopping\n");
 			break;
 		}
-		avr_cycle_count_t now = now_global();
+		avr_cycle_count_t now = module_now(&mod);
 		if (now == ~(avr_cycle_count_t)0 || now >= end)
 			break;
 		step_until(now + SLICE < end ? now + SLICE : end);
-		now = now_global();
+		now = module_now(&mod);
 		if (!opt.fast)
 			pace(&ir_pty, &debug_pty, now, t0, &max_lag);
 		if (logfp)
@@ -953,9 +679,9 @@ int main(int argc, char **argv)
 
 	unsigned long overruns = 0, gated = 0, rx_off = 0;
 	for (int i = 0; i < 4; i++) {
-		overruns += lines[i / 2][i % 2].overruns;
-		gated += lines[i / 2][i % 2].gated;
-		rx_off += lines[i / 2][i % 2].rx_off + lines[i / 2][i % 2].full;
+		overruns += mod.lines[i / 2][i % 2].overruns;
+		gated += mod.lines[i / 2][i % 2].gated;
+		rx_off += mod.lines[i / 2][i % 2].rx_off + mod.lines[i / 2][i % 2].full;
 	}
 	char lag[48] = "";
 	if (!opt.fast)
@@ -963,7 +689,7 @@ int main(int argc, char **argv)
 	fprintf(stderr, "hexbot-simavr: stopped at %.6f s: IR bytes out a side %lu, IR bytes in "
 		"while a side was selected %lu, UART overruns %lu, bytes lost with the receiver "
 		"off %lu, pty bytes dropped %lu%s\n",
-		now_global() == ~(avr_cycle_count_t)0 ? 0.0 : now_global() / (double)F_CPU,
+		module_now(&mod) == ~(avr_cycle_count_t)0 ? 0.0 : module_now(&mod) / (double)F_CPU,
 		ir_side_out, gated, overruns, rx_off, ir_pty.lost + debug_pty.lost, lag);
 	cleanup();
 	return 0;
