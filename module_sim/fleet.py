@@ -124,8 +124,11 @@ class Fleet:
             return "bit errors are drawn in Python only"
         if not any(m.kind == "virtual" and scenario.program_of(m) == "firmware" for m in scenario.modules):
             return "no virtual module runs the firmware program"
-        if any(m.kind == "virtual" and scenario.program_of(m) != "firmware" for m in scenario.modules):
-            return "some virtual modules run the Python programs"
+        others = sorted({scenario.program_of(m) for m in scenario.modules if m.kind == "virtual"}
+                        - {"firmware"})
+        if others:
+            names = {"model": "the Python programs", "simavr": "the images in simavr"}
+            return "some virtual modules run " + " and ".join(names.get(p, p) for p in others)
         from .core import FleetCore
 
         core = FleetCore.of(bus.clock, profile or scenario.profile)

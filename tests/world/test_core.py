@@ -68,6 +68,9 @@ def test_the_fleet_says_why_it_leaves_the_core():
         mixed = loads('profile = "v2"\nprogram = "firmware"\nfixed = [0, 0]\n[[modules]]\ncell = [0, 0]\n'
                       'id = 1\n[[modules]]\ncell = [1, 0]\nid = 2\nprogram = "model"\n')
         assert "Python programs" in Fleet.core_refusal(bus, mixed)
+        with_simavr = loads('profile = "v2"\nprogram = "firmware"\nfixed = [0, 0]\n[[modules]]\n'
+                            'cell = [0, 0]\nid = 1\n[[modules]]\ncell = [1, 0]\nid = 2\nprogram = "simavr"\n')
+        assert Fleet.core_refusal(bus, with_simavr) == "some virtual modules run the images in simavr"
         noisy = loads('profile = "v2"\nprogram = "firmware"\nfixed = [0, 0]\nbit_error_rate = 0.001\n'
                       '[[modules]]\ncell = [0, 0]\nid = 1\n')
         assert "bit errors" in Fleet.core_refusal(bus, noisy)
