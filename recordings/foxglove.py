@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import json
 import re
-from dataclasses import MISSING, fields
 from functools import lru_cache
 from typing import Any, Iterable
 
@@ -61,14 +60,14 @@ def _shade(rgb: tuple[int, int, int], f: float) -> tuple[int, int, int]:
 class _Module:
     """What the scene knows of one module."""
 
-    __slots__ = ("name", "placement", "fixed", "real", "drawn", "moving")
+    __slots__ = ("name", "placement", "fixed", "real", "actuators", "moving")
 
     def __init__(self, name: str) -> None:
         self.name = name
         self.placement: Placement | None = None
         self.fixed = False
         self.real = False
-        self.drawn: tuple[Any, Any] | None = None  # the last actuator record's magnets and joints_open
+        self.actuators: Actuators | None = None
         self.moving = False
 
 
@@ -78,8 +77,6 @@ class SceneView:
     def __init__(self) -> None:
         self.modules: dict[str, _Module] = {}
         self.goal: list[tuple[int, int]] = []
-        #: what a module's entity is drawn from -> the entity encoded without its timestamp
-        self._drawn: dict[tuple[Any, ...], bytes] = {}
 
     def _module(self, name: str) -> _Module:
         m = self.modules.get(name)
@@ -93,13 +90,19 @@ class SceneView:
             m = self._module(value.module)
             m.placement = rest(Cell(value.x, value.y), value.orientation)
             m.fixed, m.real, m.moving = bool(value.fixed), value.kind == "real", False
-            return self._update_one(m, t_ns)
+            return self._update([self._entity(m, t_ns)])
         if isinstance(value, Actuators):
-            return self._actuators(value.module, value.magnets, value.joints_open, t_ns)
+            m = self._module(value.module)
+            before = m.actuators
+            m.actuators = value
+            if m.placement is None or (before is not None and before.magnets == value.magnets
+                                       and before.joints_open == value.joints_open):
+                return None  # LEDs and ports only: not drawn in the scene
+            return self._update([self._entity(m, t_ns)])
         if isinstance(value, WorldEvent) and value.kind == "move-started" and value.module:
             m = self._module(value.module)
             m.moving = True
-            return self._update_one(m, t_ns) if m.placement is not None else None
+            return self._update([self._entity(m, t_ns)]) if m.placement is not None else None
         if isinstance(value, PlannerState):
             goal = [(int(c[0]), int(c[1])) for c in value.goal]
             if goal == self.goal:
@@ -111,13 +114,8 @@ class SceneView:
     def feed_record(self, topic: str, obj: Any, t_ns: int) -> bytes | None:
         """The same from a decoded bus payload of ``topic`` (a :data:`SCENE_TOPICS` key); a
         payload that is not the record its key carries changes nothing."""
-        kind = kind_of(topic)
-        if kind.cls is Actuators and isinstance(obj, dict):  # the most common record: no Actuators made
-            if not all(name in obj for name in _ACTUATORS_REQUIRED):
-                return None  # Actuators.from_dict would fail
-            return self._actuators(obj["module"], obj["magnets"], obj["joints_open"], t_ns)
         try:
-            value = kind.decode(obj)
+            value = kind_of(topic).decode(obj)
         except (ValueError, KeyError, TypeError, AttributeError):
             return None
         return self.feed(value, t_ns)
@@ -129,53 +127,22 @@ class SceneView:
             entities.append(self._goal(t_ns))
         return self._update(entities)
 
-    def _actuators(self, module: Any, magnets: Any, joints_open: Any, t_ns: int) -> bytes | None:
-        m = self._module(module)
-        before = m.drawn
-        m.drawn = (magnets, joints_open)
-        if m.placement is None or (before is not None and before[0] == magnets and before[1] == joints_open):
-            return None  # LEDs and ports only: not drawn in the scene
-        return self._update_one(m, t_ns)
-
     # -- entities -------------------------------------------------------------------------------------
     @staticmethod
     def _update(entities: list[SceneEntity]) -> bytes:
         return SceneUpdate(entities=entities).encode()
 
-    def _update_one(self, m: _Module, t_ns: int) -> bytes:
-        """``_update([_entity(m, t_ns)])``, byte for byte, the entity encoded once per look: a
-        SceneUpdate of one entity is field 2 (length-delimited) around the entity, whose field 1
-        is its timestamp, written first (protobuf writes fields in number order; a test holds this)."""
-        try:
-            look = (m.name, m.placement, m.moving, m.fixed, m.real, *self._parts(m))
-            rest = self._drawn.get(look)
-        except TypeError:  # an unhashable magnet state from a malformed record: not kept
-            return self._update([self._entity(m, t_ns)])
-        if rest is None:
-            if len(self._drawn) >= 65536:
-                self._drawn.clear()
-            rest = self._drawn[look] = self._entity(m, None).encode()
-        entity_bytes = timestamp_field(t_ns) + rest
-        return b"\x12" + _varint(len(entity_bytes)) + entity_bytes
-
-    @staticmethod
-    def _parts(m: _Module) -> tuple[tuple[Any, ...], tuple[bool, ...]]:
-        """The magnets and the joints (open or not) a module is drawn with."""
-        if m.drawn is None:
-            return (), ()
-        magnets, joints_open = m.drawn
-        return tuple(magnets[:6]), tuple(bool(o) for o in joints_open[:6])
-
-    def _entity(self, m: _Module, t_ns: int | None) -> SceneEntity:
-        """The module's entity (``t_ns`` None: without a timestamp)."""
+    def _entity(self, m: _Module, t_ns: int) -> SceneEntity:
         p = m.placement
         assert p is not None
         body = MOVING if m.moving else FIXED if m.fixed else module_colour(m.name)
-        magnets, opened = self._parts(m)
+        act = m.actuators
+        magnets = tuple(act.magnets[:6]) if act is not None else ()
+        opened = tuple(bool(o) for o in act.joints_open[:6]) if act is not None else ()
         label = m.name + (" fixed" if m.fixed else "") + (" real" if m.real else "") + (" moving" if m.moving else "")
         prism, outline, text = _body(p, body, label)
         return SceneEntity(
-            timestamp=None if t_ns is None else timestamp(t_ns), frame_id=FRAME_ID, id=m.name,
+            timestamp=timestamp(t_ns), frame_id=FRAME_ID, id=m.name,
             metadata=[KeyValuePair(key="cell", value=f"{p.cell.x},{p.cell.y}"),
                       KeyValuePair(key="orientation", value=str(p.orientation)),
                       KeyValuePair(key="kind", value="real" if m.real else "virtual"),
@@ -290,8 +257,6 @@ class FrameLog:
 
 
 _KIND = re.compile(rb'"kind":"([a-z0-9_-]*)"')
-_ACTUATORS_REQUIRED = tuple(f.name for f in fields(Actuators)
-                            if f.default is MISSING and f.default_factory is MISSING)
 
 
 def _varint(n: int) -> bytes:

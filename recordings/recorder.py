@@ -44,7 +44,6 @@ from . import meta as meta_mod
 from . import native
 from .foxglove import FoxgloveView, timestamp_field
 from .schemas import FRAME, IR_LIGHT, LOG_TOPIC, RECORDER_ERROR_TOPIC, SCENE_TOPIC, UNTYPED, kind_of
-from .shapes import RecordShapes
 from .sink import CHUNK_SIZE, McapSink
 from .stats import Tally, kind_field
 
@@ -105,9 +104,7 @@ class _Route:
     careful path, which decodes it and records what is wrong as a ``_recorder/error``.
     (A payload that looks like an object but is not valid JSON is still kept byte for byte on
     its channel; :func:`recordings.reader.summary` counts it as undecodable.) Records
-    (world, planner, meta, events) take the careful path, but a record whose bytes before and
-    after its ``sim_time_ns`` were seen before is not decoded again (:mod:`recordings.shapes`:
-    the same dict json makes; not in strict mode).
+    (world, planner, meta, events) are rare and always decoded.
     """
 
     topic: str
@@ -194,7 +191,6 @@ class Recorder:
         self.meta["start_time"] = meta_mod.iso_time(self.start_ns)
         self._origin = 0  # added to sim times; set to start_ns once the time source is sim
         self._fox = FoxgloveView() if foxglove else None
-        self._shapes = RecordShapes()  # records' sides decoded once (not in strict mode)
         self._done = Tally()  # counts of the closed parts
         self._part = Tally()  # counts of the open part (written into it when it closes)
         self.strict = strict
@@ -506,13 +502,11 @@ class Recorder:
     def _write_checked(self, route: _Route, key: str, payload: bytes, wall: int) -> None:
         """The careful path: decode the whole payload, check its schema's required fields."""
         topic = route.topic
-        obj = None if self.strict else self._shapes.decode(payload)  # json's own dict, or None: decode
-        if obj is None:
-            try:
-                obj = _decode(payload.decode("utf-8"))
-            except ValueError as exc:  # UnicodeDecodeError is a ValueError
-                self._error(topic, key, payload, wall, "not-json", str(exc))
-                return
+        try:
+            obj = _decode(payload.decode("utf-8"))
+        except ValueError as exc:  # UnicodeDecodeError is a ValueError
+            self._error(topic, key, payload, wall, "not-json", str(exc))
+            return
         sim = obj.get("sim_time_ns") if isinstance(obj, dict) else None
         if not _is_time(sim):
             sim = None

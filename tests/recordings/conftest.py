@@ -8,7 +8,6 @@ from pathlib import Path
 
 import pytest
 
-from recordings import native
 from recordings.recorder import Recorder
 from recordings.stats import Tally
 from synthetic import Published, run_synthetic
@@ -87,14 +86,3 @@ def pair_commands() -> tuple:
 def record_pair_run():
     """``record_pair_run(path, seed=None) -> path``: a fresh recording of the pair script."""
     return record_pair
-
-
-@pytest.fixture(params=["native", "python"])
-def path_kind(request, monkeypatch):
-    """A recorder's batches in C (recordings.native) or in pure Python."""
-    if request.param == "native":
-        if native.lib() is None:
-            pytest.skip("no C compiler: the native batch path is not built")
-    else:
-        monkeypatch.setattr(native, "_lib", None)
-    return request.param

@@ -12,6 +12,7 @@ from mcap.reader import make_reader
 from bus.codec import Link, encode_ack, encode_msg1, parse
 from bus.envelope import Envelope
 from bus.transport import _envelope_json
+from recordings import native
 from recordings.recorder import Recorder
 from synthetic import run_synthetic
 
@@ -105,6 +106,16 @@ def _same(tmp_path, samples, batch: int, **kwargs) -> None:
             assert g == w, f"message {i} of {a.name}: {g[:4]} != {w[:4]}"
         assert _channels(b) == _channels(a)
     assert many.tally.to_dict() == one.tally.to_dict()
+
+
+@pytest.fixture(params=["native", "python"])
+def path_kind(request, monkeypatch):
+    if request.param == "native":
+        if native.lib() is None:
+            pytest.skip("no C compiler: the native batch path is not built")
+    else:
+        monkeypatch.setattr(native, "_lib", None)
+    return request.param
 
 
 @pytest.mark.parametrize("batch", [1, 7, 500])
