@@ -6,9 +6,11 @@ firmware compiled for the host as every module's program (firmware). Run alone: 
 Prints per case: the real-time factor of the boot (9 s of sim time) and of the busy phase
 (every module commanded every 1.5 s), the wall cost per bus sample, peak RSS, and the
 process's threads (Python's and zenoh's, from /proc). With recording on, every sample put on a
-bus must be in the MCAP file (counted: 0 lost). The targets at 1000 modules with recording on
-(boot >= 3x, busy >= 5x real time, cost per sample <= 1.3x the cost at 10, the same thread
-count at 10 and 1000) are printed as met or missed; they do not fail the run.
+bus must be in the MCAP file (counted: 0 lost). The firmware cases run on the fleet core
+(module_sim/core); the model cases on the Python path. The targets at 1000 modules with
+recording on (the fleet core's: boot >= 10x, busy >= 30x real time; cost per sample <= 1.3x
+the cost at 10, the same thread count at 10 and 1000) are printed as met or missed; they do
+not fail the run.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from recordings.recorder import Recorder
 from test_module_bench import _fleets
 
 SIZES = [int(s) for s in os.environ.get("HEXBENCH_SCALE_SIZES", "10,100,1000").split(",")]
-BOOT_TARGET, BUSY_TARGET, COST_RATIO_TARGET = 3.0, 5.0, 1.3
+BOOT_TARGET, BUSY_TARGET, COST_RATIO_TARGET = 10.0, 30.0, 1.3
 RESULTS: dict[tuple[int, bool, str], dict[str, float]] = {}
 
 
