@@ -116,6 +116,12 @@ class Fleet:
                      profile: str | None = None) -> str | None:
         """Why the fleet core cannot run this fleet (None: it can): what only the Python
         path has."""
+        core = Fleet._core_or_refusal(bus, scenario, mux_cut, profile or scenario.profile)
+        return core if isinstance(core, str) else None
+
+    @staticmethod
+    def _core_or_refusal(bus: Bus, scenario: Scenario, mux_cut: bool, profile: str) -> "FleetCore | str":
+        """The clock's fleet core for this fleet (made on first use), or why it cannot be."""
         if type(bus.clock) is not VirtualClock:  # a lockstep clock's windows are the shards'
             return "the core runs on the virtual clock of one process"
         if mux_cut:
@@ -131,17 +137,11 @@ class Fleet:
             return "some virtual modules run " + " and ".join(names.get(p, p) for p in others)
         from .core import FleetCore
 
-        core = FleetCore.of(bus.clock, profile or scenario.profile)
-        return core if isinstance(core, str) else None
+        return FleetCore.of(bus.clock, profile)
 
     def _core(self, bus: Bus, scenario: Scenario, mux_cut: bool) -> "FleetCore | None":
-        if self.core_refusal(bus, scenario, mux_cut, self.profile.name) is not None:
-            return None
-        from .core import FleetCore
-
-        core = FleetCore.of(bus.clock, self.profile.name)
-        assert not isinstance(core, str)
-        return core
+        core = self._core_or_refusal(bus, scenario, mux_cut, self.profile.name)
+        return None if isinstance(core, str) else core
 
     def power_up(self, stagger: bool = True, *, freeze_gc: bool = False) -> None:
         """Switch the base on: every module boots, each timer at its own (seeded) phase.

@@ -129,16 +129,9 @@ class Mechanics:
             self._board_said[a.module] = a
         if a.origin != "virtual" and (a.origin == "serial") != (a.module in self.board_bits):
             return
-        if virtual and a.origin == "virtual":
+        if virtual:
             self._coils[key] = coils
-        bits = (list(a.joints_open), list(a.magnets))
-        if not self.lagged and self._commanded.get(a.module) == bits:
-            return  # the LEDs or the multiplexer changed: nothing a body or the meter follows
-        self._commanded[a.module] = bits
-        if self.lagged:
-            self._queue.append((a.sim_time_ns, a.module, list(a.joints_open), list(a.magnets)))
-            return
-        self._feed(a.module, a.sim_time_ns, list(a.joints_open), list(a.magnets))
+        self._command(a.module, a.sim_time_ns, a.joints_open, a.magnets)
 
     def _on_virtual(self, key: str, payload: bytes, coils: bytes) -> None:
         """A virtual module's record as VirtualModule.publish_actuators writes it: the module,
@@ -153,13 +146,19 @@ class Mechanics:
         if bits is None:
             d = json.loads(b"{" + coils + b"}")
             bits = _COIL_BITS[coils] = (d["joints_open"], d["magnets"])
+        self._command(module, t, *bits)
+
+    def _command(self, module: str, t: int, joints: list[bool], magnets: list[int]) -> None:
+        """The bits ``module``'s body follows from ``t``: judged now, or (lagged) at the
+        window's boundary."""
+        bits = (list(joints), list(magnets))
         if not self.lagged and self._commanded.get(module) == bits:
-            return
-        self._commanded[module] = (list(bits[0]), list(bits[1]))
+            return  # the LEDs or the multiplexer changed: nothing a body or the meter follows
+        self._commanded[module] = bits
         if self.lagged:
-            self._queue.append((t, module, list(bits[0]), list(bits[1])))
+            self._queue.append((t, module, list(joints), list(magnets)))
             return
-        self._feed(module, t, list(bits[0]), list(bits[1]))
+        self._feed(module, t, list(joints), list(magnets))
 
     def _at_boundary(self, t_ns: int) -> None:
         """Lagged: judge the window's records from everywhere in time order, and what falls

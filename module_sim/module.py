@@ -62,7 +62,7 @@ class VirtualModule:
         self.switches = [False] * 6  # optical switches, from the world
         self.overruns = 0
         self.core = core
-        self.core_index = -1  # set by FleetCore.attach
+        self.core_index = -1  # set by FleetCore.add_fleet
         # one framer per transceiver: the centre carries centre-link frames, sides side-link ones
         self._ir_frames = {k: self._framer_publisher(Link.CENTRE if k == 0 else Link.SIDE,
                                                      self.comm.name, "pc" if k == 0 else f"side{k}",

@@ -10,13 +10,11 @@ timer and ends early, at the end of an instant, when something outside must act:
 * a byte reached a receiver outside the core (the PC's, a twin's): it goes out on
   ``ir/rx/<dst>`` now, and that receiver delivers it at once.
 
-What else the window made comes out in bulk at its end: the records of other port changes
-(LEDs, the multiplexer: nothing the mechanics acts on) and UART overruns, each stamped with its
-instant;
-every byte on every wire is framed
-and published as frames with their own times, in the order their last bytes end (a frame is
-published once the window has passed its end, as a Python module's is at its end); collisions
-are ``event/world`` samples with the time they happened. Light from outside the core (the PC,
+What else the window made comes out in bulk at its end, each sample stamped with its own
+instant: the records of other port changes (LEDs, the multiplexer: nothing the mechanics acts
+on), UART overruns, collisions (``event/world``), and every byte on every wire framed and
+published in the order the frames' last bytes end (a frame is published once the window has
+passed its end, as a Python module's is at its end). Light from outside the core (the PC,
 twins) enters the same medium (:meth:`put_light`), so the IR medium exists once.
 
 The geometry stays in Python: the world tells the core which receiver each transceiver's
@@ -106,16 +104,13 @@ def _library() -> ctypes.CDLL:
     lib.core_next.argtypes = [p]
     lib.core_run.restype = u64
     lib.core_run.argtypes = [p, u64]
-    for name in ("core_out", "core_out_bytes", "core_out_starts", "core_out_srcs", "core_ports"):
+    for name in ("core_out", "core_out_bytes", "core_out_starts", "core_out_srcs"):
         getattr(lib, name).restype = p
     lib.core_out_n.restype = u32
-    lib.core_ports.argtypes = [p, u32]
     lib.core_out_nbytes.restype = lib.core_out_nsrcs.restype = u32
     for name in ("core_out_n", "core_out", "core_out_bytes", "core_out_starts", "core_out_srcs",
                  "core_out_clear", "core_out_nbytes", "core_out_nsrcs", "core_flush_ports"):
         getattr(lib, name).argtypes = [p]
-    lib.core_side_heard.restype = u64
-    lib.core_side_heard.argtypes = [p, u32]
     return lib
 
 
@@ -278,9 +273,6 @@ class FleetCore:
         self.lib.core_put_light(self._h, self.clock.now_ns(), self._source(fleet, d["src"]), len(idx),
                                 idx.ctypes.data, data, starts.ctypes.data, len(data), d["byte_ns"], flags)
         self._after_call()
-
-    def side_bytes_heard(self, module: "VirtualModule") -> int:
-        return self.lib.core_side_heard(self._h, module.core_index)
 
     def queue_frame(self, bus: Bus, t_last: int, frame: Any, src: str, dst: str, first: int,
                     channel: int | None) -> None:

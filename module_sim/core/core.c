@@ -115,7 +115,6 @@ typedef struct {
     uint64_t *mux_at;        /* when the multiplexer last moved */
     int32_t *route;          /* 7 per module: receiver the light of transceiver k reaches, -1 none */
     int32_t *module_rx;      /* 7 per module: the receiver of transceiver k */
-    uint64_t *side_heard;
     uint8_t ir_sel_port;
     uint8_t coil_mask[5]; /* the control board's solenoid and magnet bits, per port */
     uint8_t *ports_dirty;  /* per module: its ports changed in this instant */
@@ -455,8 +454,6 @@ static void ir_done(core_t *c, uint32_t ri, int32_t mi)
         uint32_t m = (uint32_t)r->module;
         int32_t k = r->k;
         if (c->mux[m] == k && c->mux_at[m] <= start) {
-            if (k)
-                c->side_heard[m]++;
             uart_receive(c, 2 * m + 1, 1, value);
         }
         return;
@@ -695,7 +692,6 @@ uint32_t core_add_modules(core_t *c, uint32_t n)
         RESIZE(c->mux, cap);
         RESIZE(c->mux_at, cap);
         RESIZE(c->route, 7 * (size_t)cap);
-        RESIZE(c->side_heard, cap);
         RESIZE(c->src_mark, cap);
         RESIZE(c->module_rx, 7 * (size_t)cap);
         RESIZE(c->ports_dirty, cap);
@@ -708,7 +704,6 @@ uint32_t core_add_modules(core_t *c, uint32_t n)
             memcpy(c->state[k] + c->prog[k].size * m, c->prog[k].power_on, c->prog[k].size);
         c->mux[m] = c->mux_table[0];
         c->mux_at[m] = 0;
-        c->side_heard[m] = 0;
         c->src_mark[m] = 0;
         c->ports_dirty[m] = 0;
         for (int k = 0; k < 7; k++) {
@@ -769,7 +764,6 @@ void core_free(core_t *c)
     free(c->mux);
     free(c->mux_at);
     free(c->route);
-    free(c->side_heard);
     for (int k = 0; k < 2; k++)
         free(c->prog[k].power_on); /* the libraries stay loaded: Python's drivers may share them */
     free(c);
@@ -862,9 +856,6 @@ out_t *core_out(core_t *c) { return c->out; }
 uint8_t *core_out_bytes(core_t *c) { return c->out_bytes; }
 uint64_t *core_out_starts(core_t *c) { return c->out_starts; }
 int32_t *core_out_srcs(core_t *c) { return c->out_srcs; }
-uint8_t *core_ports(core_t *c, uint32_t b) { return c->boards[b].port; }
-uint64_t core_side_heard(core_t *c, uint32_t m) { return c->side_heard[m]; }
-int32_t core_mux(core_t *c, uint32_t m) { return c->mux[m]; }
 
 void core_out_clear(core_t *c)
 {
