@@ -11,6 +11,7 @@ from dataclasses import asdict, dataclass, field, fields, is_dataclass
 from typing import Any, ClassVar, TypeVar
 
 T = TypeVar("T", bound="Record")
+_FIELD_NAMES: dict[type, frozenset[str]] = {}  # Record.from_dict's field names per class
 
 
 @dataclass
@@ -31,7 +32,9 @@ class Record:
 
     @classmethod
     def from_dict(cls: type[T], d: dict[str, Any]) -> T:
-        names = {f.name for f in fields(cls)}
+        names = _FIELD_NAMES.get(cls)
+        if names is None:  # fields() builds its tuple on every call: once per class
+            names = _FIELD_NAMES[cls] = frozenset(f.name for f in fields(cls))
         return cls(**{k: v for k, v in d.items() if k in names})
 
     @classmethod

@@ -59,6 +59,7 @@ class World:
         self.ber = scenario.bit_error_rate
         self._air: dict[tuple[str, int], Air] = {}  # receiver (dst, transceiver) -> bytes in flight
         self.collisions = 0
+        self._switches_said: dict[str, list[bool]] = {}  # module -> the switches last published
         #: the module_sim.core.FleetCore that carries the light, if any (the Fleet sets it)
         self.core: Any = None
         bus.subscribe(bus.keys.ir_tx_all, self._on_ir)
@@ -79,12 +80,14 @@ class World:
         del self._by_cell[b.cell]
         b.cell, b.orientation = cell, orientation % 6
         self._by_cell[cell] = b
-        if self.core is not None:  # light changes only around the two cells
-            near = {c for at in (old, cell) for c in (at, *at.neighbours())}
-            self.core.routes_changed(self, [x.module for c in near if (x := self._by_cell.get(c))])
+        # light and optical switches change only around the two cells (and the mover turned)
+        near = {c for at in (old, cell) for c in (at, *at.neighbours())}
+        around = [x.module for c in near if (x := self._by_cell.get(c))]
+        if self.core is not None:
+            self.core.routes_changed(self, around)
         if b.module in self.own:
             self._publish_pose(b)
-        self.publish_switches()
+        self.publish_switches(set(around))
 
     def _on_confirm(self, key: str, payload: bytes) -> None:
         """A real module's move, acknowledged and confirmed by its location report: the
@@ -131,12 +134,19 @@ class World:
         return [body.cell.neighbour(body_to_global(s, body.orientation)) in self._by_cell
                 for s in range(1, 7)]
 
-    def publish_switches(self) -> None:
+    def publish_switches(self, near: set[str] | None = None) -> None:
+        """Publish the optical switches of every own module (``near`` None: at power-up and
+        on ``world/sync``), or of those in ``near`` whose switches changed since last said: a
+        move changes only its neighbourhood, and a switch state holds until changed."""
+        now = self.bus.clock.now_ns()
         for b in self.bodies.values():
-            if b.module not in self.own:
+            if b.module not in self.own or (near is not None and b.module not in near):
                 continue
-            self.bus.put(self.bus.keys.switches(b.module),
-                         Switches(b.module, self.switches(b), self.bus.clock.now_ns()).to_json())
+            state = self.switches(b)
+            if near is not None and self._switches_said.get(b.module) == state:
+                continue
+            self._switches_said[b.module] = state
+            self.bus.put(self.bus.keys.switches(b.module), Switches(b.module, state, now).to_json())
 
     # -- the IR medium -------------------------------------------------------------------------------
     def _receivers(self, src: str, transceiver: int) -> list[tuple[str, int]]:

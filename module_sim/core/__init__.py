@@ -36,7 +36,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from bus.cheader import FirmwareError, build_path
-from bus.ir import Burst
 from bus.keys import WORLD, module_endpoint
 from bus.pins import IR_SEL_A, PORTS, ir_selected
 from bus.transport import Bus
@@ -115,10 +114,22 @@ def _library() -> ctypes.CDLL:
 
 
 def _view(addr: int, dtype: Any, n: int) -> np.ndarray:
+    """The first ``n`` items of a buffer of the core. Its buffers only grow (realloc), so a
+    view made once at an address serves any ``n`` up to its length while the address holds:
+    making one costs more than a small window's outputs."""
     if n == 0 or not addr:
         return np.empty(0, dtype=dtype)
-    size = np.dtype(dtype).itemsize * n
-    return np.frombuffer((ctypes.c_char * size).from_address(addr), dtype=dtype, count=n)
+    key = (addr, dtype)
+    v = _VIEWS.get(key)
+    if v is None or len(v) < n:
+        if len(_VIEWS) >= 64:
+            _VIEWS.clear()
+        size = np.dtype(dtype).itemsize * n
+        v = _VIEWS[key] = np.frombuffer((ctypes.c_char * size).from_address(addr), dtype=dtype, count=n)
+    return v[:n]
+
+
+_VIEWS: dict[tuple[int, Any], np.ndarray] = {}
 
 
 class _Fleet:
@@ -173,6 +184,7 @@ class FleetCore:
         self.modules: list[VirtualModule] = []  # by core index
         self._fleets: dict[int, _Fleet] = {}  # id(world) -> its fleet
         self._rx: dict[int, tuple[_Fleet, str, int]] = {}  # receiver -> (fleet, endpoint, transceiver)
+        self._rx_out: dict[int, tuple[Bus, str, str]] = {}  # receiver -> its bus, key and JSON part
         self._src_names: dict[int, str] = {}  # source id -> endpoint
         self._quoted: dict[str, str] = {}  # endpoint -> its JSON string
         self._timer: Any = None
@@ -351,6 +363,7 @@ class FleetCore:
         starts = _view(lib.core_out_starts(h), np.uint64, nbytes)
         srcs = None
         modules = self.modules
+        rx_out, quoted, src_names = self._rx_out, self._quoted, self._src_names
         for t, aux, kind, m, a, b, cnt, off, off2, n2 in out:
             if kind == _OUT_TX:
                 modules[m].core_wire(a, raw[off:off + cnt], starts[off:off + cnt].tolist(), b)
@@ -358,11 +371,16 @@ class FleetCore:
                 module = modules[m]
                 module.core_ports(raw[off:off + 10])
                 module.publish_actuators(t)
-            elif kind == _OUT_RX:
-                fleet, dst, rx = self._rx[m]
-                burst = Burst(self._src_names[cnt], next(self._burst), 0, bytes([a]), [aux],
-                              t - aux, dst, rx, [bool(b)])
-                self.put(fleet.bus, fleet.bus.keys.ir_rx(dst), burst.to_json())
+            elif kind == _OUT_RX:  # Burst.to_json of a one-byte burst, its fixed parts kept
+                to = rx_out.get(m)
+                if to is None:
+                    fleet, dst, rx = self._rx[m]
+                    to = rx_out[m] = (fleet.bus, fleet.bus.keys.ir_rx(dst),
+                                      f',"dst":{_dumps(dst)},"rx_transceiver":{rx},"corrupt":[')
+                self.put(to[0], to[1], (
+                    f'{{"src":{quoted[src_names[cnt]]},"burst":{next(self._burst)},"transceiver":0,'
+                    f'"data":"{a:02x}","starts":[{aux}],"byte_ns":{t - aux}{to[2]}'
+                    f'{"true" if b else "false"}],"type":"burst"}}').encode())
             elif kind == _OUT_OVERRUN:
                 # n: the transceiver of an IR byte (-1: none), -2: not the IR UART
                 modules[m // 2].core_overrun(t, m & 1, a, b,

@@ -26,6 +26,7 @@ offsets are derived at import time from :mod:`bus.lattice` (no table is re-typed
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Callable, Collection, Iterable, Iterator, Sequence
 
 import networkx as nx
@@ -96,12 +97,16 @@ def occupancy_graph(cells: Iterable[Coord]) -> nx.Graph:
 
 def articulation_cells(cells: Iterable[Coord]) -> set[Coord]:
     """Cells whose module cannot leave without disconnecting the structure (cut vertices)."""
-    cells = set(cells)
+    return set(_articulation_cells(frozenset(cells)))
+
+
+@lru_cache(maxsize=16)  # a planner step asks several times of one structure
+def _articulation_cells(cells: frozenset[Coord]) -> frozenset[Coord]:
     if len(cells) <= 12:
         # Tiny structures (the exact search): removing each module in turn is cheaper
         # than building a networkx graph, and is the definition itself.
-        return {c for c in cells if len(cells) > 2 and not is_connected(cells - {c})}
-    return set(nx.articulation_points(occupancy_graph(cells)))
+        return frozenset(c for c in cells if len(cells) > 2 and not is_connected(cells - {c}))
+    return frozenset(nx.articulation_points(occupancy_graph(cells)))
 
 
 # --- moves ------------------------------------------------------------------------------

@@ -4,9 +4,12 @@ commanding them, and on what the PC itself decoded out of the pile-up."""
 
 from __future__ import annotations
 
+import json
+
 import pytest
 
 from bus.clock import VirtualClock, WallClock
+from bus.ir import Burst
 from bus.scenario import loads
 from bus.session import SessionOptions, open_session
 from bus.timing import NS_PER_S
@@ -16,15 +19,20 @@ from planner_svc.endpoint import PcEndpoint
 from tests.support.block_fleets import block_scenarios
 
 
+_RX_LIGHT: list[list[bytes]] = []  # the PC's ir/rx samples of each run, newest last
+
+
 def _run(scenario, core: bool, *, seed_commands: int = 4):
     clock = VirtualClock()
     session = open_session(SessionOptions(isolated=True))
     bus = Bus(clock, f"core{int(core)}", session=session)
     frames: list[tuple] = []
     events: list[bytes] = []
+    pc_light: list[bytes] = []
     bus.subscribe_frames(lambda e: frames.append((e.sim_time_ns, e.src, e.link, e.seq, e.channel,
                                                   e.first_byte_ns, e.raw)))
     bus.subscribe(bus.keys.event("world"), lambda k, p: events.append(p))
+    bus.subscribe(bus.keys.ir_rx("pc"), lambda k, p: pc_light.append(p))
     try:
         fleet = Fleet(bus, scenario, core=core)
         assert (fleet.core is not None) == core
@@ -35,6 +43,7 @@ def _run(scenario, core: bool, *, seed_commands: int = 4):
             pc.send("SxP" if k % 2 == 0 else "SxOff", 1 + k % 6)
             clock.run(until_ns=clock.now_ns() + 1_500_000_000)
         received = [(r.frame.raw, r.t_first_ns, r.t_last_ns) for r in pc.received]
+        _RX_LIGHT.append(pc_light)
         return sorted(frames), received, fleet.world.collisions, events
     finally:
         bus.close()
@@ -54,6 +63,9 @@ def test_the_core_gives_the_python_paths_frames_and_the_pcs_bytes(n):
     assert py_coll > 0 and c_coll == py_coll  # the pile-up is there, and the same
     assert c_rx == py_rx
     assert sorted(c_events) == sorted(py_events)  # collision events: receivers, sources, bytes
+    light = _RX_LIGHT[-1]  # the core writes the PC's bursts itself: each is Burst.to_json's bytes
+    assert len(light) > n
+    assert all(Burst.from_dict(json.loads(p)).to_json() == p for p in light)
 
 
 def test_the_fleet_says_why_it_leaves_the_core():
