@@ -114,6 +114,12 @@ class SceneView:
     def feed_record(self, topic: str, obj: Any, t_ns: int) -> bytes | None:
         """The same from a decoded bus payload of ``topic`` (a :data:`SCENE_TOPICS` key); a
         payload that is not the record its key carries changes nothing."""
+        if topic.startswith("world/actuators/") and isinstance(obj, dict):
+            m = self.modules.get(obj.get("module"))  # type: ignore[arg-type]
+            act = None if m is None else m.actuators
+            if (act is not None and m.placement is not None and obj.get("magnets") == act.magnets
+                    and obj.get("joints_open") == act.joints_open):
+                return None  # what feed finds without decoding it: LEDs and ports only
         try:
             value = kind_of(topic).decode(obj)
         except (ValueError, KeyError, TypeError, AttributeError):
