@@ -150,6 +150,20 @@ class Framer:
     def pending(self) -> bytes:
         return bytes(self._noise + self._buf)
 
+    def waiting(self) -> tuple[int, list[int]] | None:
+        """Where the next byte lands: ``(0, [])`` with nothing held, ``(held, alive)`` while
+        the ``held`` bytes are a prefix of the templates ``alive`` (indexes into
+        :func:`patterns`) and nothing is emitted until one of them can no longer grow;
+        None if neither holds. A byte that keeps some template of ``alive`` (all those of
+        :func:`patterns` whose pattern takes it at ``held``) longer than ``held + 1`` is only
+        held: :mod:`module_sim.core` needs no Python for it."""
+        if not self._buf:
+            return 0, []
+        if self._alive is None or self._at != len(self._buf):
+            return None
+        index = _INDEX[self.link]
+        return len(self._buf), [index[pat] for pat, _ in self._alive]
+
     def _scan(self, out: list[Timed], final: bool) -> None:
         while self._buf:
             buf = self._buf
@@ -220,6 +234,17 @@ _KNOWN: dict[Link, dict[bytes, tuple]] = {}
 _KNOWN_MAX = 1 << 14
 _FIRST: dict[Link, list[tuple]] = {}
 _FIRST1: dict[Link, list[tuple]] = {}
+_INDEX: dict[Link, dict[tuple[int, ...], int]] = {}  # per link: pattern -> its index (patterns)
+
+
+def patterns(link: Link) -> tuple[list[tuple[int, ...]], list[list[int]]]:
+    """The templates of ``link`` as patterns (the byte expected at each offset, -1 for a free
+    byte), in grammar order, and for each first byte the indexes of those that do not fail
+    on it (what :meth:`Framer.waiting` counts in)."""
+    table = _first_byte_table(link)
+    index = _INDEX[link]
+    pats = sorted(index, key=index.__getitem__)
+    return pats, [[index[pat] for pat, _ in c] for c in table]
 
 
 def _first_byte_table(link: Link) -> list[tuple]:
@@ -228,6 +253,9 @@ def _first_byte_table(link: Link) -> list[tuple]:
     table = _FIRST.get(link)
     if table is None:
         pats = [(tuple(t.head) + (-1,) * t.n_any + tuple(t.tail), t) for t in GRAMMARS[link]]
+        index = _INDEX[link] = {}
+        for pat, _ in pats:
+            index.setdefault(pat, len(index))
         table = _FIRST[link] = [tuple((pat, t) for pat, t in pats
                                       if match(t, bytes([b]))[0] is not Match.FAIL)
                                 for b in range(256)]

@@ -102,7 +102,7 @@ class IrReceiver:
         rx = d["rx_transceiver"]
         byte_ns = d["byte_ns"]
         corrupt = d["corrupt"] or [False] * len(data)
-        entries = [[start, value, rx, bad, None]
+        entries = [[start, value, rx, bad, None, start + byte_ns]
                    for start, value, bad in zip(d["starts"], data, corrupt)]
         k = (d["src"], d["burst"])
         self._pending[k] = entries
@@ -114,14 +114,15 @@ class IrReceiver:
         entries = self._pending.get(k)
         if entries is None:
             return
-        start, value, transceiver, bad, _ = entries[n]
+        start, value, transceiver, bad, _, end = entries[n]
         if n == len(entries) - 1:
             del self._pending[k]
         # Two garbled bytes overlapping on one transceiver are one byte on the UART line:
         # the first to complete carries the mixture, the other never forms a stop bit.
         if bad and start < self._line_busy.get(transceiver, -1):
             return
-        self._line_busy[transceiver] = self.clock.now_ns()
+        # its stop bit (now, unless the fleet core handed it over at its window's end)
+        self._line_busy[transceiver] = end
         self.deliver(transceiver, value, start, bad)
 
 

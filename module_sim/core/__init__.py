@@ -36,7 +36,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from bus.cheader import FirmwareError, build_path
-from bus.keys import WORLD, module_endpoint
+from bus.codec import Link
+from bus.framer import Framer, patterns
+from bus.keys import PC, WORLD, module_endpoint
 from bus.pins import IR_SEL_A, PORTS, ir_selected
 from bus.transport import Bus
 
@@ -98,6 +100,8 @@ def _library() -> ctypes.CDLL:
     lib.core_set_route.argtypes = [p, u32, u32, i32]
     lib.core_set_pins.argtypes = [p, u32, p]
     lib.core_power_up.argtypes = [p, u32, u64, u32, u32, p]
+    lib.core_set_grammar.argtypes = [p, u32, u32, p, ctypes.c_char_p, p, p]
+    lib.core_frame_receiver.argtypes = [p, i32, u32, u32, p]
     lib.core_put_light.argtypes = [p, u64, i32, u32, p, p, p, u32, u32, p]
     lib.core_next.restype = u64
     lib.core_next.argtypes = [p]
@@ -194,6 +198,16 @@ class FleetCore:
         self._batches: dict[Bus, list[tuple[str, bytes]]] = {}  # the window's samples, per bus
         self._burst = itertools.count()  # burst numbers of what goes out on ir/rx
         self.windows = 0
+        # The PC's receivers: a framer like the PC's own follows their bytes, so the core
+        # stops a window only at a byte on which the PC's framer can act (core.c quiet_byte)
+        pats, first = patterns(Link.CENTRE)
+        width = max(map(len, pats))
+        flat = (ctypes.c_int16 * (len(pats) * width))(*[b for p in pats for b in p + (-1,) * (width - len(p))])
+        order = [t for c in first for t in c]
+        at = list(itertools.accumulate(map(len, first), initial=0))
+        lib.core_set_grammar(self._h, len(pats), width, flat, bytes(map(len, pats)),
+                             (ctypes.c_int16 * max(len(order), 1))(*order), (ctypes.c_uint32 * 257)(*at))
+        self._framers: dict[int, Framer] = {}  # framed receiver -> its framer
 
     @property
     def clock(self) -> Any:
@@ -223,7 +237,18 @@ class FleetCore:
         if r is None:
             r = fleet.external_rx[(dst, transceiver)] = self.lib.core_add_external_receiver(self._h)
             self._rx[r] = (fleet, dst, transceiver)
+            if dst == PC and transceiver == 0:  # the planner's endpoint frames the centre link
+                self._framers[r] = Framer(Link.CENTRE)
+                self._frame(r)
         return r
+
+    def _frame(self, r: int) -> None:
+        """Tell the core where receiver ``r``'s framer stands (after Python fed it)."""
+        state = self._framers[r].waiting()
+        if state is not None:
+            held, alive = state
+            if self.lib.core_frame_receiver(self._h, r, held, len(alive), (ctypes.c_int16 * max(len(alive), 1))(*alive)):
+                raise FirmwareError(f"the fleet core refused receiver {r}'s framer state")
 
     def _source(self, fleet: _Fleet, src: str) -> int:
         s = fleet.sources.get(src)
@@ -363,7 +388,8 @@ class FleetCore:
         starts = _view(lib.core_out_starts(h), np.uint64, nbytes)
         srcs = None
         modules = self.modules
-        rx_out, quoted, src_names = self._rx_out, self._quoted, self._src_names
+        rx_out, quoted, src_names, framers = self._rx_out, self._quoted, self._src_names, self._framers
+        framed_now: dict[int, tuple[bytearray, list[int]]] = {}  # framed receiver -> its bytes, their ends
         for t, aux, kind, m, a, b, cnt, off, off2, n2 in out:
             if kind == _OUT_TX:
                 modules[m].core_wire(a, raw[off:off + cnt], starts[off:off + cnt].tolist(), b)
@@ -372,6 +398,12 @@ class FleetCore:
                 module.core_ports(raw[off:off + 10])
                 module.publish_actuators(t)
             elif kind == _OUT_RX:  # Burst.to_json of a one-byte burst, its fixed parts kept
+                held = framed_now.get(m)
+                if held is not None:
+                    held[0].append(a)
+                    held[1].append(t)
+                elif m in framers:
+                    framed_now[m] = (bytearray([a]), [t])
                 to = rx_out.get(m)
                 if to is None:
                     fleet, dst, rx = self._rx[m]
@@ -397,6 +429,9 @@ class FleetCore:
                     f'{{"kind":"collision","src":"{WORLD}","sim_time_ns":{t},"receiver":{_dumps(dst)},'
                     f'"transceiver":{rx},"sources":[{names}],"received":"{raw[off2:off2 + n2].hex()}"}}').encode())
         lib.core_out_clear(h)
+        for r, (data, ends) in framed_now.items():  # in one chunk: the framer's cache knows most
+            framers[r].feed(data, ends)
+            self._frame(r)
 
 
 _dumps = json.JSONEncoder(separators=(",", ":")).encode

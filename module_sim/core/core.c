@@ -96,6 +96,12 @@ typedef struct {
     uint64_t longest;
     uint64_t line_busy; /* the end of the last byte delivered (IrReceiver._line_busy) */
     uint8_t has_busy;
+    /* A framed receiver outside the core (core_frame_receiver): while its framer can only wait
+     * for more bytes, a byte it gets stops nothing (see quiet_byte). */
+    uint8_t framed;
+    uint32_t q_pos;      /* bytes the framer holds (0: empty) */
+    uint32_t q_n;        /* templates still possible */
+    int16_t *q_alive, *q_next;
 } receiver_t;
 
 typedef struct {
@@ -146,6 +152,12 @@ typedef struct {
     uint32_t srcs_n, srcs_cap;
     int stop;
     int stepping; /* the board whose step runs (hexbot_flush) */
+    /* the framer grammar of framed receivers (core_set_grammar): patterns, -1 a free byte */
+    int16_t *tpl_pat;    /* n_tpl x tpl_max */
+    uint8_t *tpl_len;
+    uint32_t n_tpl, tpl_max;
+    int16_t *first;      /* per first byte: the templates that do not fail on it */
+    uint32_t first_at[257];
     char error[256];
 } core_t;
 
@@ -418,6 +430,40 @@ static void medium_add(core_t *c, int32_t ri, int32_t src, const uint8_t *data, 
 
 static void uart_receive(core_t *c, uint32_t b, int u, uint8_t byte);
 
+/* Does a byte leave the framed receiver r's framer waiting for more (bus.framer.Framer._scan:
+ * some template still possible needs more bytes)? Then nobody outside acts on it now, and
+ * the window need not stop: it reaches them, at its own time, at the window's end. A byte
+ * that ends a frame, or noise, or fails every template stops the window (and r waits for
+ * Python to tell its framer's state again). */
+static int quiet_byte(core_t *c, receiver_t *r, uint8_t v)
+{
+    uint32_t p = r->q_pos, n = 0, nc;
+    const int16_t *cand;
+    if (p == 0) {
+        cand = c->first + c->first_at[v];
+        nc = c->first_at[v + 1] - c->first_at[v];
+    } else {
+        cand = r->q_alive;
+        nc = r->q_n;
+    }
+    for (uint32_t i = 0; i < nc; i++) {
+        int16_t t = cand[i];
+        int16_t e = c->tpl_pat[(size_t)t * c->tpl_max + p];
+        if ((e < 0 || e == v) && c->tpl_len[t] > p + 1)
+            r->q_next[n++] = t;
+    }
+    if (n == 0) {
+        r->framed = 0;
+        return 0;
+    }
+    int16_t *x = r->q_alive;
+    r->q_alive = r->q_next;
+    r->q_next = x;
+    r->q_n = n;
+    r->q_pos = p + 1;
+    return 1;
+}
+
 /* A byte's stop bit at receiver ri (IrReceiver._complete, then VirtualModule._ir_rx). */
 static void ir_done(core_t *c, uint32_t ri, int32_t mi)
 {
@@ -463,7 +509,8 @@ static void ir_done(core_t *c, uint32_t ri, int32_t mi)
     o->b = bad;
     o->aux = start;
     o->n = src;
-    c->stop = 1;
+    if (!(r->framed && quiet_byte(c, r, value)))
+        c->stop = 1;
 }
 
 /* --- boards --------------------------------------------------------------------------------- */
@@ -726,6 +773,48 @@ int32_t core_add_external_receiver(core_t *c)
     return add_receiver(c, -1, 0);
 }
 
+/* The framer grammar of framed receivers: n templates, pats[n][max] (-1 a free byte), their
+ * lengths, and for each first byte b the templates first[first_at[b]..first_at[b+1]). */
+int core_set_grammar(core_t *c, uint32_t n, uint32_t max, const int16_t *pats, const uint8_t *lens,
+                     const int16_t *first, const uint32_t *first_at)
+{
+    free(c->tpl_pat);
+    free(c->tpl_len);
+    free(c->first);
+    c->tpl_pat = malloc((size_t)n * max * sizeof *c->tpl_pat);
+    c->tpl_len = malloc(n);
+    c->first = malloc((size_t)first_at[256] * sizeof *c->first + 1);
+    if (!c->tpl_pat || !c->tpl_len || !c->first)
+        return -1;
+    memcpy(c->tpl_pat, pats, (size_t)n * max * sizeof *pats);
+    memcpy(c->tpl_len, lens, n);
+    memcpy(c->first, first, (size_t)first_at[256] * sizeof *first);
+    memcpy(c->first_at, first_at, sizeof c->first_at);
+    c->n_tpl = n;
+    c->tpl_max = max;
+    return 0;
+}
+
+/* Receiver ri's framer holds pos bytes and waits on the n templates alive (pos 0: empty): its
+ * bytes stop a window only where the framer may act (quiet_byte). */
+int core_frame_receiver(core_t *c, int32_t ri, uint32_t pos, uint32_t n, const int16_t *alive)
+{
+    receiver_t *r = &c->rcv[ri];
+    if (!r->q_alive) {
+        r->q_alive = malloc((c->n_tpl + 1) * sizeof *r->q_alive);
+        r->q_next = malloc((c->n_tpl + 1) * sizeof *r->q_next);
+        if (!r->q_alive || !r->q_next)
+            return -1;
+    }
+    if (n > c->n_tpl || (pos && !n))
+        return -1;
+    memcpy(r->q_alive, alive, n * sizeof *alive);
+    r->q_n = n;
+    r->q_pos = pos;
+    r->framed = 1;
+    return 0;
+}
+
 /* A source of light outside the core: its id for core_put_light. */
 int32_t core_add_external_source(core_t *c)
 {
@@ -743,8 +832,14 @@ void core_free(core_t *c)
         return;
     for (uint32_t i = 0; i < c->slot_used; i++)
         free(c->slot_pool[i].members);
-    for (uint32_t i = 0; i < c->n_receivers; i++)
+    for (uint32_t i = 0; i < c->n_receivers; i++) {
         free(c->rcv[i].slots);
+        free(c->rcv[i].q_alive);
+        free(c->rcv[i].q_next);
+    }
+    free(c->tpl_pat);
+    free(c->tpl_len);
+    free(c->first);
     free(c->slot_pool);
     free(c->mem_pool);
     free(c->rcv);

@@ -45,8 +45,10 @@ GOLDEN_THESIS_12 = (11749, 2122, "f33c71eefa55de1dba8241650fd5c2c07cfe29df6f5721
 #: The same run on the fleet core (module_sim.core, the firmware program's default): the same
 #: frames (GOLDEN_THESIS_12_FRAMES), no ``ir/tx``/``ir/rx`` samples for light inside the core
 #: (the PC's receiver gets its bytes on ``ir/rx/pc`` one at a time), and the records of LED and
-#: multiplexer changes (and UART overruns) written at the end of their window, with their own times.
-GOLDEN_THESIS_12_CORE = (9217, 2122, "14fab0cc2b50493bb9d21131c2dc942106058800f268f14aa8c6c09d4fdc8634")
+#: multiplexer changes (and UART overruns) written at the end of their window, with their own times;
+#: the PC's received bytes that only extend a frame too (the core stops a window at a byte of the
+#: PC's only where the PC's framer can act on it: the same frames, the PC's bytes logged later).
+GOLDEN_THESIS_12_CORE = (9217, 2122, "c1f6cdc5374163a77480caa9383887928f268b16d0ccff9f630472ea7ecaf249")
 
 
 def _digest(path) -> tuple[int, int, str]:
