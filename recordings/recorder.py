@@ -57,6 +57,9 @@ _decode = json.JSONDecoder().decode  # skips json.loads' encoding sniffing (payl
 _INT = re.compile(rb"\s*(-?\d+)\s*[,}]")
 _SIM_TIME = re.compile(rb'"sim_time_ns":(0|[1-9][0-9]{0,18})(?=[,}])')  # as JSON writes an int
 _RECORDS_SEEN = 1 << 16  # distinct records kept decoded (a bound: cleared when full)
+#: The records kept decoded, one cache for the process (an object depends on its bytes alone):
+#: one per recorder kept 40 at 40 fleets (10 000 modules recorded: peak RSS 4.3 GB, 1.9 GB with one).
+_RECORDS: dict[tuple[str, bytes, bytes], dict[str, Any]] = {}
 #: An envelope as :meth:`bus.envelope.Envelope.to_json` writes it: its times and kind in one match
 #: (the fields before it, link, src, dst and raw, are the rest of the required ones).
 _ENVELOPE = re.compile(rb',"sim_time_ns":(\d+),"wall_time_ns":(\d+),"seq":\d+,"kind":"([^"\\]*)"')
@@ -206,7 +209,7 @@ class Recorder:
         self._pending_frames = 0
         self.paths: list[Path] = []
         self._required: dict[str, tuple[str, ...]] = {}
-        self._records_seen: dict[tuple[str, bytes, bytes], dict[str, Any]] = {}  # see _decode_record
+        self._records_seen = _RECORDS  # see _decode_record
         self._last_sim_ns = 0
         self._since_size_check = 0
         self._part_first_ns: int | None = None
