@@ -10,6 +10,8 @@ import subprocess
 import sys
 from collections import Counter
 
+import pytest
+
 from hexbench.cli import main
 from processes import free_port
 from recordings.reader import iter_samples, read_frames
@@ -27,16 +29,17 @@ def _remote_recorder(port: int, fleet: str, out) -> subprocess.Popen:
                             env={**os.environ, "PYTHONUNBUFFERED": "1"})
 
 
-def test_a_recorder_in_another_process_gets_every_sample(tmp_path, capsys):
+@pytest.mark.parametrize("program", ["model", "firmware"])  # firmware: the fleet core's batches
+def test_a_recorder_in_another_process_gets_every_sample(tmp_path, capsys, program):
     port = free_port()
-    fleet = f"remote{os.getpid()}"
+    fleet = f"remote{program[0]}{os.getpid()}"
     remote = tmp_path / "remote.mcap"
     rec = _remote_recorder(port, fleet, remote)
     try:
         assert rec.stdout.readline().startswith("recording "), rec.stderr.read()
         local = tmp_path / "local.mcap"
         assert main(["run", "pair", "--planner", "thesis-serial", "--clock", "virtual",
-                     "--connect", f"tcp/127.0.0.1:{port}", "--fleet", fleet,
+                     "--program", program, "--connect", f"tcp/127.0.0.1:{port}", "--fleet", fleet,
                      "--record", str(local)]) == 0
         capsys.readouterr()
     finally:
