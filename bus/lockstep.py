@@ -12,7 +12,10 @@ parallel discrete-event simulation does:
   session, so when the last word arrives every sample another process put in window ``k`` is
   here too: held, not handled. They are handled at the window's end, ``(k+1)*W``, before
   anything else there, by sender name, then in the order each sender put them: an order that
-  depends on the run alone, not on thread timing.
+  depends on the run alone, not on thread timing. A peer that crossed first may already be
+  sending its samples of window ``k+1``: they arrive behind its word on ``k``, so they are
+  held for the next boundary (handled at ``(k+1)*W`` they would come before their time, or
+  not, as the threads went).
 * **The lookahead contract.** A sample that crosses processes is handled up to one window
   after it was put. So what it causes must lie at least ``W`` after it (the IR medium's light
   has a byte time: 33.3 ms at 300 baud), and its handler must act on the times it carries,
@@ -59,7 +62,10 @@ class LockstepClock(VirtualClock):
 
     def __init__(self) -> None:
         super().__init__()
-        self._held: dict[str, list[tuple[Callable[..., Any], tuple[Any, ...]]]] = {}
+        # sender -> its samples in arrival order, with a (None, (k,)) mark where its word on
+        # window k came: what is before the mark it put in window k or earlier
+        self._held: dict[str, list[tuple[Callable[..., Any] | None, tuple[Any, ...]]]] = {}
+        self._speakers: set[str] = set()  # senders that say words: participants, not bystanders
         self.lockstep: Lockstep | None = None  # set by Lockstep: until then, a plain virtual clock
         self.ended = False  # every participant stopped at a barrier: nothing more will run
         #: called with each boundary's time once the samples held for it are handled: work
@@ -94,15 +100,32 @@ class LockstepClock(VirtualClock):
         with self._lock:
             self._held.setdefault(sender, []).append((fn, args))
 
-    def release(self, at_ns: int) -> int:
-        """Time moves to ``at_ns`` (a window boundary) and the held samples are handled
-        there, by sender, each sender's in arrival order. Returns how many."""
+    def mark_window(self, sender: str, window: int) -> None:
+        """``sender``'s word on ``window`` came (on the thread that holds its samples, in the
+        order it sent them): what it sent before belongs to that window or an earlier one."""
         with self._lock:
-            held, self._held = self._held, {}
+            self._held.setdefault(sender, []).append((None, (window,)))
+            self._speakers.add(sender)
+
+    def release(self, at_ns: int, window: int | None = None) -> int:
+        """Time moves to ``at_ns`` (a window boundary) and the held samples are handled
+        there, by sender, each sender's in arrival order: of a sender that said a word, those
+        before its word on ``window`` (its later ones wait for their own boundary); of one
+        that says none, all. Returns how many."""
+        taken: dict[str, list[tuple[Callable[..., Any], tuple[Any, ...]]]] = {}
+        with self._lock:
+            for sender, items in self._held.items():
+                upto = len(items)
+                if window is not None and sender in self._speakers:
+                    marks = [i for i, (fn, args) in enumerate(items) if fn is None and args[0] <= window]
+                    upto = marks[-1] + 1 if marks else 0
+                taken[sender] = [item for item in items[:upto] if item[0] is not None]
+                del items[:upto]
+            self._held = {sender: items for sender, items in self._held.items() if items}
         self._now = max(self._now, at_ns)
         n = 0
-        for sender in sorted(held):
-            for fn, args in held[sender]:
+        for sender in sorted(taken):
+            for fn, args in taken[sender]:
                 self._inbox.append(((float(n), 0), fn, args))
                 n += 1
         self._settle()
@@ -165,6 +188,8 @@ class Lockstep:
             k = int(d["window"])
         except (ValueError, KeyError, TypeError):
             return  # not a word of ours: the barrier waits for a good one
+        # behind every sample the sender put in window k and before any of k+1 (one lane)
+        self.clock.mark_window(sender or who, k)
         with self._cond:
             self._said[who] = max(self._said.get(who, -1), k)
             if d.get("stop"):
@@ -203,7 +228,7 @@ class Lockstep:
         self.bus.put_remote(self._word_key, json.dumps(
             {"window": k, "stop": self.stopping, "sim_time_ns": end}).encode())
         others_stop = self._barrier(k)
-        self.released += self.clock.release(end)
+        self.released += self.clock.release(end, k)
         self.window = k + 1
         if self.stopping or others_stop:
             self.clock.ended = True

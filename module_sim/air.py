@@ -13,10 +13,14 @@ class Air:
     ended yet, for the IR medium's collision model.
 
     Bytes are kept in slots by exact time span ``(start, end)``; in a slot, bytes known to be
-    garbled are grouped by value. A new byte that overlaps bytes in the air arrives as the AND
-    of itself and all of them, and each of them becomes the AND of itself and the new byte
-    (the line is low while either carrier is on). Only bytes whose value or garbled state
-    changes need a correction, so a pile-up of n identical transmissions costs O(n), not O(n^2).
+    garbled are grouped by value. A byte arrives as the AND of what it and every byte
+    overlapping it were sent as (the line is low while either carrier is on): a new byte that
+    overlaps bytes in the air arrives as the AND of itself and what they were sent as, and each
+    of them becomes the AND of itself and the new byte. Only the bytes sent count, never what
+    an earlier collision made of them, so the result does not depend on the order the medium
+    learns of the bursts (light from another shard comes a lockstep window late, after later
+    light of its own shard). Only bytes whose value or garbled state changes need a
+    correction, so a pile-up of n identical transmissions costs O(n), not O(n^2).
     """
 
     __slots__ = ("keys", "slots", "longest")
@@ -24,7 +28,8 @@ class Air:
     def __init__(self) -> None:
         self.keys: list[tuple[int, int]] = []  # slot spans, sorted
         # parallel to keys: [clean members, {value: garbled members}, sources, AND, OR of the
-        # garbled values]; member = [src, burst, index, value]
+        # garbled values, AND of what the members were sent as];
+        # member = [src, burst, index, value, sent]
         self.slots: list[list[Any]] = []
         self.longest = 0
 
@@ -57,29 +62,28 @@ class Air:
                     if span[1] <= start:
                         continue
                     slot = slots[j]
-                    clean, garbled, srcs, s_and, s_or = slot
+                    clean, garbled, srcs, s_and, s_or, s_sent = slot
                     if len(srcs) <= 1 and (not srcs or src in srcs):
                         continue  # empty, or a transmitter never collides with itself (one UART)
                     hit = True
                     hits.append(srcs)
-                    acc &= s_and
+                    acc &= s_sent
                     if s_or & v != s_or:  # some known-garbled bytes change again
                         for w in [w for w in garbled if w & v != w]:
                             members = garbled.pop(w)
                             nw = w & v
                             for m in members:
                                 m[3] = nw
-                                fixes.append(m[:])
+                                fixes.append(m[:4])
                             garbled.setdefault(nw, []).extend(members)
                         slot[4] = s_or & v
                         slot[3] = s_and & v
                     if clean:  # first collision of these bytes
                         a, o = slot[3], slot[4]
                         for m in clean:
-                            acc &= m[3]
                             nw = m[3] & v
                             m[3] = nw
-                            fixes.append(m[:])
+                            fixes.append(m[:4])
                             garbled.setdefault(nw, []).append(m)
                             a &= nw
                             o |= nw
@@ -118,20 +122,27 @@ class Air:
             if partial:
                 for m in mine:
                     m[3] |= lost_mask
+                    m[4] |= lost_mask  # the bits that did not go out here are idle
                     garbled.setdefault(m[3], []).append(m)
                     result = m[3]
                 if result is None:
                     result = data[i] | lost_mask
             slot[2] = {m[0] for m in clean} | {m[0] for ms in garbled.values() for m in ms}
-            slot[3], slot[4] = 0xFF, 0
+            slot[3], slot[4], slot[5] = 0xFF, 0, 0xFF
             for w in garbled:
                 slot[3] &= w
                 slot[4] |= w
+            for m in clean:
+                slot[5] &= m[4]
+            for ms in garbled.values():
+                for m in ms:
+                    slot[5] &= m[4]
         return result
 
-    def add(self, src: str, burst: int, values: list[int], corrupt: list[bool], starts: list[int],
-            byte_ns: int) -> None:
-        """Put a forwarded burst's bytes (with the values it arrives with) in the air."""
+    def add(self, src: str, burst: int, sent: bytes, values: list[int], corrupt: list[bool],
+            starts: list[int], byte_ns: int) -> None:
+        """Put a forwarded burst's bytes in the air: what was ``sent`` and the values it
+        arrives with."""
         keys, slots = self.keys, self.slots
         if byte_ns > self.longest:
             self.longest = byte_ns
@@ -141,11 +152,12 @@ class Air:
             if j < len(keys) and keys[j] == span:
                 slot = slots[j]
             else:
-                slot = [[], {}, set(), 0xFF, 0x00]
+                slot = [[], {}, set(), 0xFF, 0x00, 0xFF]
                 keys.insert(j, span)
                 slots.insert(j, slot)
             v = values[i]
-            m = [src, burst, i, v]
+            m = [src, burst, i, v, sent[i]]
+            slot[5] &= sent[i]
             if corrupt[i]:
                 slot[1].setdefault(v, []).append(m)
                 slot[3] &= v

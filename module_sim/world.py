@@ -224,7 +224,7 @@ class World:
                 self.collisions += 1
                 bus.event(WORLD, "collision", receiver=dst, transceiver=rx,
                           sources=sorted(sources | {src}), received=bytes(values).hex())
-            air.add(src, n, values, corrupt, starts, byte_ns)
+            air.add(src, n, data, values, corrupt, starts, byte_ns)
             if True in corrupt:
                 bus.put(rx_key, Burst(src, n, d["transceiver"], bytes(values), starts, byte_ns, dst,
                                       rx, corrupt).to_json())

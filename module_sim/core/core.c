@@ -14,11 +14,13 @@
  *
  * The medium is module_sim/air.py's model, kept exactly (docs/physics.md): bytes in the air at
  * a receiver are grouped by exact time span (a slot); a new byte that overlaps a slot holding
- * another transmitter's bytes arrives as the AND of itself and them, and each of them becomes
- * the AND of itself and the new byte. A slot keeps the values of its hits in order so that a
- * member's value is its own AND every hit since it joined, read in O(8): a pile-up of n bytes
- * costs O(n), not O(n^2). A receiver delivers a byte at its stop bit; of two garbled bytes
- * overlapping on one line only the first to complete forms a byte (bus/ir.py, IrReceiver).
+ * another transmitter's bytes arrives as the AND of itself and what they were sent as, and each
+ * of them becomes the AND of itself and the new byte (so no order of arrival changes a byte's
+ * value: it is the AND of what it and every byte overlapping it were sent as). A slot keeps the
+ * values of its hits in order so that a member's value is its own AND every hit since it
+ * joined, read in O(8): a pile-up of n bytes costs O(n), not O(n^2). A receiver delivers a
+ * byte at its stop bit; of two garbled bytes overlapping on one line only the first to
+ * complete forms a byte (bus/ir.py, IrReceiver).
  */
 #include <dlfcn.h>
 #include <stdint.h>
@@ -77,8 +79,7 @@ typedef struct {
     uint64_t start, end;
     int32_t first_src;
     uint8_t multi;        /* members from two or more transmitters */
-    uint8_t and_join;     /* AND of the members' values when they joined */
-    uint8_t hits_and;     /* AND of every hit's value */
+    uint8_t and_sent;     /* AND of the members' values as sent */
     uint8_t pad;
     uint32_t hits;
     int32_t last_zero[8]; /* per bit: the last hit with that bit 0, -1 none */
@@ -278,8 +279,7 @@ static int32_t slot_alloc(core_t *c)
     sl->members = keep;
     sl->cap_members = keep_cap;
     sl->first_src = -1;
-    sl->and_join = 0xFF;
-    sl->hits_and = 0xFF;
+    sl->and_sent = 0xFF;
     for (int k = 0; k < 8; k++)
         sl->last_zero[k] = -1;
     return s;
@@ -354,7 +354,7 @@ static void medium_add(core_t *c, int32_t ri, int32_t src, const uint8_t *data, 
             if (!sl->multi && (sl->first_src < 0 || sl->first_src == src))
                 continue; /* empty, or only this transmitter's own byte (one UART) */
             hit = 1;
-            acc &= sl->and_join & sl->hits_and;
+            acc &= sl->and_sent;
             /* the slot's sources, for the collision event */
             for (uint32_t k = 0; k < sl->n_members; k++) {
                 int32_t s = c->mem_pool[sl->members[k]].src;
@@ -369,7 +369,6 @@ static void medium_add(core_t *c, int32_t ri, int32_t src, const uint8_t *data, 
                 if (!(v >> k & 1))
                     sl->last_zero[k] = (int32_t)sl->hits;
             sl->hits++;
-            sl->hits_and &= v;
         }
         values[i] = hit ? acc : v;
         corrupt[i] = (uint8_t)(hit || (corrupt_in && corrupt_in[i]));
@@ -419,7 +418,7 @@ static void medium_add(core_t *c, int32_t ri, int32_t src, const uint8_t *data, 
         GROW(sl->members, sl->n_members, sl->cap_members, 1);
         sl->members[sl->n_members++] = mi;
         sl->alive++;
-        sl->and_join &= values[i];
+        sl->and_sent &= data[i];
         if (sl->first_src < 0)
             sl->first_src = src;
         else if (sl->first_src != src)

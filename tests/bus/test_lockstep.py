@@ -83,3 +83,29 @@ def test_a_participant_killed_mid_run_ends_the_other_at_that_window(tmp_path):
     got = json.loads((tmp_path / "a.json").read_text())
     assert got["windows"] == k  # it finished windows 0..k-1 and stopped at k's barrier
     assert got["log"] == [e for e in one_process(fleet + "ref") if e[1] == "a" and e[0] < (k + 1) * WINDOW_NS]
+
+
+def test_a_peers_samples_of_its_next_window_wait_for_their_own_boundary():
+    """A peer that crossed a boundary first sends its next window's samples behind its word:
+    the boundary hands over only what came before that word (handled there, the rest would
+    come a window before its time, or not, as the threads went)."""
+    from bus.lockstep import LockstepClock
+
+    clock = LockstepClock()
+    handled: list[tuple[int, str]] = []
+
+    def take(what: str) -> None:
+        handled.append((clock.now_ns(), what))
+
+    clock.post_foreign("s1", take, "s1 in window 0")
+    clock.post_foreign("s0", take, "s0 in window 0")
+    clock.mark_window("s0", 0)
+    clock.post_foreign("s0", take, "s0 in window 1")  # s0 is ahead: s1 has not said 0 yet
+    clock.mark_window("s1", 0)
+    assert clock.release(30, 0) == 2
+    assert handled == [(30, "s0 in window 0"), (30, "s1 in window 0")]
+    assert clock.release(60, 1) == 0  # no word on window 1 from s0 yet: nothing of it is due
+    clock.mark_window("s0", 1)
+    clock.mark_window("s1", 1)
+    assert clock.release(90, 2) == 1
+    assert handled[2:] == [(90, "s0 in window 1")]

@@ -309,3 +309,33 @@ def test_a_command_frame_on_the_facing_side_is_executed_and_answered_back(rigs):
     assert not any(r.frame.raw == ack for r in rig.pc.received[mark:])
     leds = rig.fleet.modules[2].actuators()
     assert all(leds.led_pos) and all(leds.led_neg) and all(leds.led_joint)
+
+
+def _arrived(order: list[tuple[str, bytes, list[int]]]) -> dict[tuple[str, int], int]:
+    """What each byte arrives with at one receiver when ``Air`` learns of the bursts in this
+    order: its value on arrival, then every ``garble`` correction."""
+    from module_sim.air import Air
+
+    air, got = Air(), {}
+    for src, data, starts in order:
+        values, corrupt, fixes, _ = air.collide(src, 0, data, starts, TB, now=0)
+        for s, _burst, i, v in fixes:
+            got[(s, i)] = v
+        got.update({(src, i): v for i, v in enumerate(values)})
+        air.add(src, 0, data, values, corrupt, starts, TB)
+    return got
+
+
+def test_a_garbled_byte_is_the_and_of_what_overlaps_it_whatever_the_order_light_arrives_in():
+    """Shards hand light from another process over a lockstep window late, after later light
+    of their own: a byte's value must not depend on that order. y's first byte meets x and z;
+    z meets both of y's bytes but not x (x ended before z began), so z keeps the bits x
+    would clear: it is not garbled by what x did to y."""
+    from itertools import permutations
+
+    x = ("m1.comm", bytes([0xF0]), [0])
+    y = ("m2.comm", bytes([0xFF, 0xFF]), [TB // 2, TB // 2 + TB])
+    z = ("m3.comm", bytes([0x0F]), [TB + TB // 5])
+    want = {("m1.comm", 0): 0xF0, ("m2.comm", 0): 0x00, ("m2.comm", 1): 0x0F, ("m3.comm", 0): 0x0F}
+    for order in permutations([x, y, z]):
+        assert _arrived(list(order)) == want, [o[0] for o in order]
