@@ -115,6 +115,9 @@ class LiveFoxglove:
         self.close()
 
 
+_SNAPSHOT_AGAIN_S = 1.0  # after a subscription to the scene, when the scene is sent again
+
+
 class _Listener(foxglove.ServerListener):
     """A client subscribing to the scene gets the whole scene at once."""
 
@@ -124,3 +127,9 @@ class _Listener(foxglove.ServerListener):
     def on_subscribe(self, client: Any, channel: Any) -> None:
         if channel.topic == SCENE_TOPIC:  # off the server's thread: snapshot() takes the lock
             threading.Thread(target=self._live.snapshot, name="foxglove-snapshot", daemon=True).start()
+            # The SDK calls this while it makes the subscription: a message logged at once can
+            # miss the new client (seen under load: a viewer with an empty scene until something
+            # moved). The whole scene again a moment later reaches it for sure.
+            timer = threading.Timer(_SNAPSHOT_AGAIN_S, self._live.snapshot)
+            timer.daemon = True
+            timer.start()
