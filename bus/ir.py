@@ -48,6 +48,21 @@ class Burst:
 _dumps = json.JSONEncoder(separators=(",", ":")).encode
 
 
+def one_byte_burst(src_json: str, burst: int, value: int, start: int, byte_ns: int, tail: str,
+                   corrupt: bool) -> bytes:
+    """:meth:`Burst.to_json` of a one-byte burst received, for a sender of many (the fleet
+    core, a byte for the PC at a time): ``src_json`` the source's JSON string and ``tail``
+    the receiver's part, :func:`burst_tail`, each made once."""
+    return (f'{{"src":{src_json},"burst":{burst},"transceiver":0,"data":"{value:02x}",'
+            f'"starts":[{start}],"byte_ns":{byte_ns}{tail}{"true" if corrupt else "false"}],'
+            f'"type":"burst"}}').encode()
+
+
+def burst_tail(dst: str, rx_transceiver: int) -> str:
+    """The receiver's part of :func:`one_byte_burst`."""
+    return f',"dst":{_dumps(dst)},"rx_transceiver":{rx_transceiver},"corrupt":['
+
+
 def garble_fixes(dst: str, with_src: str, fixes: list[list[Any]]) -> bytes:
     """Every correction one new burst causes at ``dst``: ``[src, burst, index, value]`` each."""
     return _dumps({"type": "garble", "dst": dst, "with": with_src, "fixes": fixes}).encode()

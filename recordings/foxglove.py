@@ -71,6 +71,13 @@ class _Module:
         self.moving = False
 
 
+def _drawn(m: _Module, magnets: Any, joints_open: Any) -> bool:
+    """Whether ``m`` is drawn with these magnets and joints already (the scene draws only
+    those of an actuator record)."""
+    act = m.actuators
+    return act is not None and act.magnets == magnets and act.joints_open == joints_open
+
+
 class SceneView:
     """World and planner records in, encoded ``foxglove.SceneUpdate`` messages out."""
 
@@ -93,10 +100,9 @@ class SceneView:
             return self._update([self._entity(m, t_ns)])
         if isinstance(value, Actuators):
             m = self._module(value.module)
-            before = m.actuators
+            drawn_before = _drawn(m, value.magnets, value.joints_open)
             m.actuators = value
-            if m.placement is None or (before is not None and before.magnets == value.magnets
-                                       and before.joints_open == value.joints_open):
+            if m.placement is None or drawn_before:
                 return None  # LEDs and ports only: not drawn in the scene
             return self._update([self._entity(m, t_ns)])
         if isinstance(value, WorldEvent) and value.kind == "move-started" and value.module:
@@ -116,9 +122,7 @@ class SceneView:
         payload that is not the record its key carries changes nothing."""
         if topic.startswith("world/actuators/") and isinstance(obj, dict):
             m = self.modules.get(obj.get("module"))  # type: ignore[arg-type]
-            act = None if m is None else m.actuators
-            if (act is not None and m.placement is not None and obj.get("magnets") == act.magnets
-                    and obj.get("joints_open") == act.joints_open):
+            if m is not None and m.placement is not None and _drawn(m, obj.get("magnets"), obj.get("joints_open")):
                 return None  # what feed finds without decoding it: LEDs and ports only
         try:
             value = kind_of(topic).decode(obj)

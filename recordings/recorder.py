@@ -209,7 +209,6 @@ class Recorder:
         self._pending_frames = 0
         self.paths: list[Path] = []
         self._required: dict[str, tuple[str, ...]] = {}
-        self._records_seen = _RECORDS  # see _decode_record
         self._last_sim_ns = 0
         self._since_size_check = 0
         self._part_first_ns: int | None = None
@@ -548,7 +547,7 @@ class Recorder:
             return _decode(payload.decode("utf-8"))
         sim = int(m.group(1))
         key = (topic, payload[:m.start(1)], payload[m.end(1):])
-        seen = self._records_seen.get(key)
+        seen = _RECORDS.get(key)
         if seen is not None:
             obj = seen.copy()
             obj["sim_time_ns"] = sim
@@ -556,9 +555,9 @@ class Recorder:
         obj = _decode(payload.decode("utf-8"))
         # the time found is the object's own, and no other field can look like it
         if isinstance(obj, dict) and obj.get("sim_time_ns") == sim and payload.count(b'"sim_time_ns":') == 1:
-            if len(self._records_seen) >= _RECORDS_SEEN:
-                self._records_seen.clear()
-            self._records_seen[key] = obj.copy()
+            if len(_RECORDS) >= _RECORDS_SEEN:
+                _RECORDS.clear()
+            _RECORDS[key] = obj.copy()
         return obj
 
     def _error(self, topic: str, key: str, payload: bytes, wall: int, reason: str, detail: str,

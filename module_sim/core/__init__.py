@@ -38,6 +38,7 @@ import numpy as np
 from bus.cheader import FirmwareError, build_path
 from bus.codec import Link
 from bus.framer import Framer, patterns
+from bus.ir import burst_tail, one_byte_burst
 from bus.keys import PC, WORLD, module_endpoint
 from bus.pins import IR_SEL_A, PORTS, ir_selected
 from bus.transport import Bus
@@ -397,7 +398,7 @@ class FleetCore:
                 module = modules[m]
                 module.core_ports(raw[off:off + 10])
                 module.publish_actuators(t)
-            elif kind == _OUT_RX:  # Burst.to_json of a one-byte burst, its fixed parts kept
+            elif kind == _OUT_RX:
                 held = framed_now.get(m)
                 if held is not None:
                     held[0].append(a)
@@ -407,12 +408,9 @@ class FleetCore:
                 to = rx_out.get(m)
                 if to is None:
                     fleet, dst, rx = self._rx[m]
-                    to = rx_out[m] = (fleet.bus, fleet.bus.keys.ir_rx(dst),
-                                      f',"dst":{_dumps(dst)},"rx_transceiver":{rx},"corrupt":[')
-                self.put(to[0], to[1], (
-                    f'{{"src":{quoted[src_names[cnt]]},"burst":{next(self._burst)},"transceiver":0,'
-                    f'"data":"{a:02x}","starts":[{aux}],"byte_ns":{t - aux}{to[2]}'
-                    f'{"true" if b else "false"}],"type":"burst"}}').encode())
+                    to = rx_out[m] = (fleet.bus, fleet.bus.keys.ir_rx(dst), burst_tail(dst, rx))
+                self.put(to[0], to[1], one_byte_burst(quoted[src_names[cnt]], next(self._burst), a, aux,
+                                                      t - aux, to[2], bool(b)))
             elif kind == _OUT_OVERRUN:
                 # n: the transceiver of an IR byte (-1: none), -2: not the IR UART
                 modules[m // 2].core_overrun(t, m & 1, a, b,
