@@ -4,8 +4,9 @@ import pytest
 from hypothesis import given, strategies as st
 
 from bus import codec
-from bus.codec import Kind, Link, parse
-from bus.functions import FUNCTIONS, FunctionCode, lookup, used_codes
+from bus.codec import (WALTER_BUSY, WALTER_NO_POSITION, Kind, Link, encode_walter_log,
+                       encode_walter_side, parse, walter_side_op)
+from bus.functions import FUNCTIONS, FunctionCode, WalterFlag, WalterOp, lookup, used_codes
 
 byte = st.integers(0, 255)
 roles = st.sampled_from([b"", b"S: ", b"M: "])
@@ -135,12 +136,17 @@ def test_noise_reasons(raw, reason):
 
 def test_function_table_is_complete_and_consistent():
     assert FunctionCode.MCW == 21 and lookup("mcw").code == 21 and lookup(21).name == "MCW"
-    unused = [6, 7, 8, 9, 10, 17, 18, 19, 26, 27, 51, 52, 53, 54, 55, 69, 70, 75]
+    unused = [6, 7, 8, 9, 10, 18, 19, 26, 27, 54, 55, 69, 70, 75]
     assert FUNCTIONS[63].name == "Version" and FUNCTIONS[64].name == "SelfTest"  # ours (v2)
+    # ours (v2): the distributed reconfiguration's upload, beat and debug line
+    assert [FUNCTIONS[c].name for c in (51, 52, 53, 17)] == ["WalterSetup", "WalterGoal", "WalterBeat",
+                                                            "WalterLog"]
+    assert all(FUNCTIONS[c].profile == "v2" for c in (51, 52, 53, 17))
     assert all(not FUNCTIONS[c].used for c in unused)
     assert all(FUNCTIONS[c].board.value == "control" for c in (1, 2, 3, 4, 5, 11, 12, 13, 14, 15, 16,
                                                                20, 21, 22, 23, 24))
-    assert all(FUNCTIONS[c].led_mirror for c in range(1, 25) if FUNCTIONS[c].used)
+    assert all(FUNCTIONS[c].led_mirror for c in range(1, 25)
+               if FUNCTIONS[c].used and FUNCTIONS[c].profile == "v1")
     assert FUNCTIONS[42].board.value == "reserved" and FUNCTIONS[126].board.value == "reserved"
     for f in FUNCTIONS.values():
         for m in f.led_mirror:  # every mirror names a real comm-board function
@@ -154,3 +160,34 @@ def test_encode_rejects_bad_arguments():
         codec.encode_command("IrSel", 9)
     with pytest.raises(KeyError, match="no function named"):
         codec.encode_command("Fly", 1)
+
+
+# --- v2 Walter rounds (docs/protocol.md) ------------------------------------------------------
+@pytest.mark.parametrize("op", list(WalterOp))
+@pytest.mark.parametrize("answer", [False, True])
+def test_walter_side_messages_round_trip(op, answer):
+    raw = encode_walter_side(op, answer=answer)
+    f = parse("side", raw)
+    assert f.kind is (Kind.WALTER_ANSWER if answer else Kind.WALTER_REQUEST)
+    assert f.view == {"op": op.name.lower(), "valid": True}
+
+
+def test_a_garbled_walter_side_message_does_not_check():
+    raw = bytearray(encode_walter_side(WalterOp.PIVOT_CW))
+    raw[2] ^= 0x10  # one bit of the complement lost
+    assert parse("side", bytes(raw)).view["valid"] is False
+    assert walter_side_op(bytes([0, 0xFF])) is None  # a complement that checks, but no such op
+
+
+def test_walter_log_line():
+    flags = WalterFlag.FREE | WalterFlag.MOVED | WalterFlag.CW
+    f = parse("debug", encode_walter_log(300, flags, 4, 0))
+    assert f.kind is Kind.WALTER_LOG
+    assert f.view["round"] == 300 % 256 and f.view["position"] == 4 and f.view["direction"] == "CW"
+    assert f.view["free"] and f.view["moved"] and not f.view["stopped"]
+    unknown = parse("debug", encode_walter_log(1, 0, WALTER_NO_POSITION, 0)).view
+    assert unknown["position"] is None and unknown["direction"] is None
+
+
+def test_walter_busy_byte_is_a_centre_frame():
+    assert parse("centre", WALTER_BUSY).kind is Kind.WALTER_BUSY
