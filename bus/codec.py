@@ -517,6 +517,36 @@ def walter_side_view(raw: bytes) -> dict[str, Any]:
     return {"op": WalterOp(op).name.lower() if op is not None else None, "valid": op is not None}
 
 
+#: A goal table entry's mode byte (``WalterGoal``): bit 0 CW, bits 1..4 the delay in rounds.
+WALTER_MODE_CW = 1
+WALTER_MODE_DELAY_SHIFT = 1
+WALTER_MODE_DELAY_MAX = 15
+
+
+def walter_mode(cw: bool, delay: int) -> int:
+    if not 0 <= delay <= WALTER_MODE_DELAY_MAX:
+        raise ValueError(f"a Walter delay is 0..{WALTER_MODE_DELAY_MAX} rounds, not {delay}")
+    return int(cw) | delay << WALTER_MODE_DELAY_SHIFT
+
+
+def walter_mode_view(mode: int) -> tuple[bool, int]:
+    """(CW, delay) of a goal table entry's mode byte."""
+    return bool(mode & WALTER_MODE_CW), mode >> WALTER_MODE_DELAY_SHIFT & WALTER_MODE_DELAY_MAX
+
+
+def encode_walter_goals(entries: list[tuple[int, int, bool, int]]) -> list[bytes]:
+    """``WalterGoal`` frames for a goal table in the module frame: entry k = (x, y, cw, delay)
+    of position k, two a frame; x = y = -128 (0 on the wire) marks no entry."""
+    frames = []
+    for k in range(0, len(entries), 2):
+        args = [k]
+        for x, y, cw, delay in entries[k:k + 2]:
+            args += [x + COORD_OFFSET, y + COORD_OFFSET, walter_mode(cw, delay)]
+        args += [0] * (7 - len(args))
+        frames.append(encode_command("WalterGoal", *args))
+    return frames
+
+
 def encode_walter_log(round_: int, flags: int, position: int, delay: int) -> bytes:
     """The control board's debug line of a Walter round: ``"WLK"`` round flags position delay."""
     return WALTER_LOG_TAG + bytes([round_ & 0xFF, flags & 0xFF, position & 0xFF, delay & 0xFF]) + EOL

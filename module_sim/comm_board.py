@@ -12,8 +12,8 @@ from typing import Callable
 from bus import codec, rotations
 from bus.rotations import orientation_after
 from bus.clock import Clock
-from bus.functions import ACK_UNKNOWN, FUNCTIONS, Board, FunctionCode as F
-from bus.lattice import Cell, Direction, Joint, Side, body_to_global, move_rule
+from bus.functions import ACK_UNKNOWN, FUNCTIONS, Board, FunctionCode as F, WalterOp
+from bus.lattice import Cell, Direction, Joint, Side, body_to_global, global_to_body, move_rule
 from bus.pins import (COMM_PULLUPS, IR_SEL_A, IR_SEL_MASK, LED_JOINT, LED_NEG, LED_POS, Pin, fold,
                       ir_select_bits, ir_selected, port_masks)
 from bus.timing import (BOOT_CIRCLE_ROUNDS, BOOT_CIRCLE_TICKS, BOOT_FLASH_ROUNDS, BOOT_FLASH_TICKS,
@@ -21,11 +21,14 @@ from bus.timing import (BOOT_CIRCLE_ROUNDS, BOOT_CIRCLE_TICKS, BOOT_FLASH_ROUNDS
                         LOCALIZE_FAILED_CIRCLE_ROUNDS, LOCALIZE_FAILED_CIRCLE_TICKS,
                         LOCALIZE_LISTEN_TICKS, LOCALIZE_MUX_SETTLE_TICKS, SUBSTRATE_ACK_DELAY_TICKS,
                         THESIS_LOCALIZE_REPEATS, THESIS_LOCALIZE_ROUNDS, THESIS_LOCALIZE_SEND_TICKS,
-                        YREF_FLASH_TICKS, YREF_SHOWS, Baud, localize_slot_ticks,
-                        localize_step_ticks, localize_window_ticks)
+                        THESIS_ROTATION_TIMING, WALTER_MUX_SETTLE_TICKS, YREF_FLASH_TICKS, YREF_SHOWS,
+                        Baud, localize_slot_ticks, localize_step_ticks, localize_window_ticks,
+                        walter_actuation_at, walter_busy_at, walter_hold_end_at, walter_log_at,
+                        walter_window_ticks)
 
 from .avr import TIMEOUT, Delay, Mcu, Program, Rx, Tx, Uart
 from .profiles import Profile
+from .walter import Entry, WalterState
 
 _STAR, _R, _L = ord("*"), ord("R"), ord("L")
 #: Relay frames of these functions carry 0, not 'N', as their first argument (Appendix A).
@@ -61,6 +64,8 @@ class CommBoard(Mcu):
         self.addressed = False  # selected by id or cell (not by a broadcast)
         self.v2_active = False  # a Select has been seen since power-up
         self.mux_changed_at = 0
+        #: v2 distributed reconfiguration: the problem and Figure 10's state (module_sim.walter)
+        self.walter: WalterState | None = None
 
     # -- IR multiplexer (Table 3-5) -------------------------------------------------------
     @property
@@ -534,3 +539,126 @@ class CommBoard(Mcu):
         yield Tx(self.uart1, codec.encode_position(self.id, self.X, self.Y, self.Yref,
                                                    localized=bool(self.L), mobile=bool(self.M),
                                                    substrate=bool(self.S), role=self.role))
+
+    # -- v2 distributed reconfiguration (Walter, Tsai & Amato; docs/protocol.md) ------------
+    def WalterSetup(self, n: int, plen: int, cost: int, ax: int, ay: int) -> None:
+        self.walter = WalterState(n, plen, cost, Cell(ax - codec.COORD_OFFSET, ay - codec.COORD_OFFSET))
+
+    def WalterGoal(self, k: int, x: int, y: int, m: int, x2: int, y2: int, m2: int) -> None:
+        if self.walter is None:
+            return
+        for at, (ex, ey, mode) in ((k, (x, y, m)), (k + 1, (x2, y2, m2))):
+            if ex or ey:  # x = y = 0: no entry (the odd last one)
+                self.walter.table[at] = Entry.of(ex - codec.COORD_OFFSET, ey - codec.COORD_OFFSET, mode)
+
+    def _contacts(self) -> list[bool]:
+        """The optical switches in the global frame: [s-1] = a neighbour across global side s."""
+        here = self.neighbours()
+        out = [False] * 6
+        for body in Side:
+            if here[body - 1]:
+                out[body_to_global(body, self.Yref) - 1] = True
+        return out
+
+    def _relay_mirrored(self, code: int, *args: int) -> Program:
+        """A control-board code this board sends itself, with its LED mirror (as ``dispatch``)."""
+        yield from self.relay(code, list(args))
+        for mirror in FUNCTIONS[code].led_mirror:
+            getattr(self, mirror)(*args)
+
+    def WalterBeat(self, r_hi: int, r_lo: int) -> Program:
+        """One round of Figure 10 (docs/protocol.md): decide at the beat, ask the neighbours in
+        the six side windows (or answer them), actuate together at the round's instant, log,
+        and say on the centre channel whether this module is still on its way."""
+        w, u1 = self.walter, self.uart1
+        round_ = r_hi << 8 | r_lo
+        if round_ == 0:
+            self.walter = None
+        if w is None or round_ == 0 or not self.L:
+            return
+        t0 = self.tick_count()
+        baud = u1.baud
+
+        def until(ticks: int) -> int:
+            return t0 + ticks - self.tick_count()
+
+        def left(ticks: int) -> int:
+            return max(1, until(ticks))
+
+        contacts = self._contacts()
+        plan = w.decide(round_, Cell(self.X, self.Y), contacts)
+        requests = plan.requests() if plan is not None else {}
+        window = walter_window_ticks(baud)
+        answered = True
+        pivot: tuple[WalterOp, Side] | None = None  # asked to be a substrate: op, mover's side
+        hold: int | None = None  # asked to hold: the body joint to open
+        for g in Side:
+            end = g * window
+            op = requests.get(g) if answered else None
+            if op is not None:  # ask the neighbour across global side g
+                yield Delay(until((g - 1) * window))
+                self.IrSel(global_to_body(g, self.Yref))
+                yield Delay(until((g - 1) * window + WALTER_MUX_SETTLE_TICKS))
+                yield Tx(u1, codec.encode_walter_side(op))
+                got = yield from self._walter_side(codec.WALTER_ANSWER_TAG[0], left, end)
+                if got != op:
+                    answered = False
+                elif op is WalterOp.HOLD:  # and open its own pin on that side
+                    yield from self._relay_mirrored(F.JxOpen, int(Joint.of(g + 1 - self.Yref)))
+                continue
+            # listen for a mover across global side g + 3 (it sends on its side g)
+            facing = Side.of(g + 3)
+            if not contacts[facing - 1]:
+                continue
+            yield Delay(until((g - 1) * window))
+            self.IrSel(global_to_body(facing, self.Yref))
+            op = yield from self._walter_side(codec.WALTER_REQUEST_TAG[0], left, end)
+            if op is None or (plan is not None and op is not WalterOp.HOLD):
+                continue  # a mover is nobody's substrate; it opens its pin there itself
+            yield Tx(u1, codec.encode_walter_side(op, answer=True))
+            if plan is not None:
+                continue
+            if op is WalterOp.HOLD:
+                hold = hold or int(Joint.of(facing + 1 - self.Yref))
+            else:
+                pivot = pivot or (op, g)
+                w.passed(op, Cell(self.X, self.Y), facing)
+        self.IrSel(0)
+        w.unanswered = plan is not None and not answered
+        yield Delay(until(walter_actuation_at(baud)))
+        if plan is not None and answered:
+            mi = int(Joint.of(plan.joint - self.Yref))
+            code = F.MCW if plan.cw else F.MCCW
+            yield from self._rotate(code, 0, True, mi, *THESIS_ROTATION_TIMING)
+            w.moved = True
+            self._moved(mi, plan.cw)
+        elif pivot is not None:
+            op, g = pivot
+            cw = op is WalterOp.PIVOT_CW
+            si = int(Joint.of((g if cw else g + 1) - self.Yref))  # the pivot in this body
+            yield from self._rotate(0, F.SCW if cw else F.SCCW, False, si, *THESIS_ROTATION_TIMING)
+        elif hold is not None:
+            yield from self._relay_mirrored(F.JxOpen, hold)
+            yield Delay(until(walter_hold_end_at(baud)))
+            yield from self._relay_mirrored(F.JxClose, hold)
+        yield Delay(until(walter_log_at(baud)))
+        w.settle(Cell(self.X, self.Y))
+        position = codec.WALTER_NO_POSITION if w.position is None else w.position
+        yield from self.relay(F.WalterLog, [round_ & 0xFF, w.flags(), position, w.delay])
+        yield Delay(until(walter_busy_at(baud)))
+        if not w.done():
+            yield Tx(u1, codec.WALTER_BUSY)
+
+    def _walter_side(self, tag: int, left: Callable[[int], int], end: int) -> Program:
+        """Wait until tick ``end`` for a side message starting with ``tag``; its op or None."""
+        u1 = self.uart1
+        b = yield Rx(u1, left(end))
+        while b not in (tag, TIMEOUT):
+            b = yield Rx(u1, left(end))
+        if b != tag:
+            return None
+        body = []
+        for _ in range(2):
+            body.append((yield Rx(u1, left(end))))
+        op = codec.walter_side_op(bytes(body))
+        return None if op is None else WalterOp(op)

@@ -200,6 +200,10 @@ class ControlBoard(Mcu):
             yield Delay(SELFTEST_PULSE_TICKS)
         yield Tx(self.uart1, codec.encode_self_test(dip_id(self.pin_in[DIP_PORT]), switches))
 
+    def WalterLog(self, round_: int, flags: int, position: int, delay: int) -> Program:
+        """v2: a Walter round's line on the debug UART (the comm board decided; docs/protocol.md)."""
+        yield Tx(self.uart1, codec.encode_walter_log(round_, flags, position, delay))
+
     def _rotation(self, name: str, i: int, t1: int, t2: int, t3: int) -> Program:
         """Run a rotation of :mod:`bus.rotations` on the relays and solenoids."""
         actions = {"open": self.JxOpen, "pos": self.SxP, "neg": self.SxN,
