@@ -150,7 +150,7 @@ def _grammar(link: Link) -> tuple[Template, ...]:
         for p in _prefixes():
             t.append(Template(Kind.MSG1, p + START, MSG1_LEN - 1))
         t.extend(Template(Kind.PROBE, bytes([b])) for b in PROBE_BYTES)
-        t.append(Template(Kind.WALTER_REQUEST, WALTER_REQUEST_TAG, 2))
+        t.append(Template(Kind.WALTER_REQUEST, WALTER_REQUEST_TAG, 3))
         t.append(Template(Kind.WALTER_ANSWER, WALTER_ANSWER_TAG, 2))
     elif link is Link.DEBUG:
         for p in _prefixes(role_allowed=False):
@@ -501,9 +501,14 @@ def encode_position(ident: int, x: int, y: int, yref: int, *, localized: bool, m
 
 
 # --- v2 Walter rounds (docs/protocol.md) ---------------------------------------------------
-def encode_walter_side(op: int, *, answer: bool = False) -> bytes:
-    """A mover's request (``answer`` False) or a neighbour's answer on the side link."""
-    return (WALTER_ANSWER_TAG if answer else WALTER_REQUEST_TAG) + bytes([op, ~op & 0xFF])
+def encode_walter_request(op: int, position: int) -> bytes:
+    """A mover's request on the side link: what it asks, and its position (who passes)."""
+    return WALTER_REQUEST_TAG + bytes([op, ~op & 0xFF, position & 0xFF])
+
+
+def encode_walter_answer(op: int) -> bytes:
+    """A neighbour's answer on the side link: the op it will do."""
+    return WALTER_ANSWER_TAG + bytes([op, ~op & 0xFF])
 
 
 def walter_side_op(body: bytes) -> int | None:
@@ -514,7 +519,11 @@ def walter_side_op(body: bytes) -> int | None:
 
 def walter_side_view(raw: bytes) -> dict[str, Any]:
     op = walter_side_op(raw[1:3])
-    return {"op": WalterOp(op).name.lower() if op is not None else None, "valid": op is not None}
+    view: dict[str, Any] = {"op": WalterOp(op).name.lower() if op is not None else None,
+                            "valid": op is not None}
+    if raw[:1] == WALTER_REQUEST_TAG:
+        view["position"] = raw[3]
+    return view
 
 
 #: A goal table entry's mode byte (``WalterGoal``): bit 0 CW, bits 1..4 the delay in rounds.

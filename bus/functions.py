@@ -173,6 +173,13 @@ _DEFINED: tuple[Function, ...] = (
     Function(17, "WalterLog", Board.CONTROL,
              (Arg("round"), Arg("flags"), Arg("position"), Arg("delay")), (), Ack.ECHO,
              profile="v2", doc="the round's line on the debug UART (WLK)"),
+    Function(18, "STwo", Board.CONTROL,
+             (Arg("dirs", 0, 3, doc="bit 0: the first CW, bit 1: the second CW"),
+              Arg("i1", 1, 6, True), Arg("i2", 1, 6, True)), ("LSTwo",), Ack.ECHO, profile="v2",
+             doc="substrate of two rotations at once (SCW/SCCW(i1) and SCW/SCCW(i2), thesis "
+                 "timing): two movers turn about this module in one Walter round"),
+    _com(54, "LSTwo", (Arg("dirs", 0, 3), Arg("i1", 1, 6, True), Arg("i2", 1, 6, True)),
+         "LED mirror of STwo", profile="v2"),
     Function(126, "Timeout", Board.RESERVED, doc="'~': a receive timed out"),
 )
 

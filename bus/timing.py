@@ -97,9 +97,9 @@ THESIS_ROTATION_TIMING = (8, 4, 9)
 # -- v2 distributed reconfiguration: one Walter round (docs/protocol.md), ticks from the beat --
 # The parts below make the round's layout (the walter_* functions); the programs wait for the
 # layout's instants (WALTER_*_AT in the header), never for a part alone.
-#: A side window: select the side, settle, the request and its answer (3 bytes each), a guard.
+#: A side window: select the side, settle, the request (4 bytes) and its answer (3), a guard.
 WALTER_MUX_SETTLE_TICKS = 2
-WALTER_SIDE_MSG_BYTES = 3
+WALTER_SIDE_MSG_BYTES = 7
 WALTER_WINDOW_GUARD_TICKS = 3
 #: After the last window, before the actuation: a JxOpen a mover relayed in the last window
 #: has left the control board's debug UART (its ACK and MSG lines, about 50 ms).
@@ -154,7 +154,7 @@ def localize_step_ticks(baud: int) -> int:
 
 def walter_window_ticks(baud: int) -> int:
     """A Walter round's side window: settle, request and answer, guard."""
-    return (math.ceil(2 * WALTER_SIDE_MSG_BYTES * byte_time_ns(baud) / TICK_NS)
+    return (math.ceil(WALTER_SIDE_MSG_BYTES * byte_time_ns(baud) / TICK_NS)
             + WALTER_MUX_SETTLE_TICKS + WALTER_WINDOW_GUARD_TICKS)
 
 

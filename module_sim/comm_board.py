@@ -28,7 +28,7 @@ from bus.timing import (BOOT_CIRCLE_ROUNDS, BOOT_CIRCLE_TICKS, BOOT_FLASH_ROUNDS
 
 from .avr import TIMEOUT, Delay, Mcu, Program, Rx, Tx, Uart
 from .profiles import Profile
-from .walter import Entry, WalterState
+from .walter import Entry, WalterState, walter_pivots_apart
 
 _STAR, _R, _L = ord("*"), ord("R"), ord("L")
 #: Relay frames of these functions carry 0, not 'N', as their first argument (Appendix A).
@@ -210,6 +210,14 @@ class CommBoard(Mcu):
                    "close_all": self.JointOffAll, "off_all": self._magnet_leds_off}
         for ticks in rotations.perform(name, i, t1, t2, t3, actions=actions,
                                        sccw_both_negative=self.profile.sccw_both_negative):
+            yield Delay(ticks)
+
+    def LSTwo(self, dirs: int, i1: int, i2: int) -> Program:
+        """v2: the LED mirror of ``STwo`` (a substrate of two rotations at once)."""
+        actions = {"open": self.JointOn, "pos": self.SideOnP, "neg": self.SideOnN,
+                   "close_all": self.JointOffAll, "off_all": self._magnet_leds_off}
+        for ticks in rotations.perform_together(rotations.two_substrates(dirs, i1, i2),
+                                                *THESIS_ROTATION_TIMING, actions=actions):
             yield Delay(ticks)
 
     def _magnet_leds_off(self) -> None:
@@ -590,8 +598,8 @@ class CommBoard(Mcu):
         requests = plan.requests() if plan is not None else {}
         window = walter_window_ticks(baud)
         answered = True
-        pivot: tuple[WalterOp, Side] | None = None  # asked to be a substrate: op, mover's side
-        hold: int | None = None  # asked to hold: the body joint to open
+        pivots: list[tuple[WalterOp, Side]] = []  # asked to be a substrate: op, mover's side
+        opened = False  # a pin of its own opened for a neighbour that moves
         for g in Side:
             end = g * window
             op = requests.get(g) if answered else None
@@ -599,12 +607,13 @@ class CommBoard(Mcu):
                 yield Delay(until((g - 1) * window))
                 self.IrSel(global_to_body(g, self.Yref))
                 yield Delay(until((g - 1) * window + WALTER_MUX_SETTLE_TICKS))
-                yield Tx(u1, codec.encode_walter_side(op))
-                got = yield from self._walter_side(codec.WALTER_ANSWER_TAG[0], left, end)
-                if got != op:
+                yield Tx(u1, codec.encode_walter_request(op, w.position))
+                got = yield from self._walter_side(codec.WALTER_ANSWER_TAG[0], left, end, 2)
+                if got is None or got[0] != op:
                     answered = False
                 elif op is WalterOp.HOLD:  # and open its own pin on that side
                     yield from self._relay_mirrored(F.JxOpen, int(Joint.of(g + 1 - self.Yref)))
+                    opened = True
                 continue
             # listen for a mover across global side g + 3 (it sends on its side g)
             facing = Side.of(g + 3)
@@ -612,17 +621,21 @@ class CommBoard(Mcu):
                 continue
             yield Delay(until((g - 1) * window))
             self.IrSel(global_to_body(facing, self.Yref))
-            op = yield from self._walter_side(codec.WALTER_REQUEST_TAG[0], left, end)
-            if op is None or (plan is not None and op is not WalterOp.HOLD):
-                continue  # a mover is nobody's substrate; it opens its pin there itself
-            yield Tx(u1, codec.encode_walter_side(op, answer=True))
-            if plan is not None:
+            heard = yield from self._walter_side(codec.WALTER_REQUEST_TAG[0], left, end, 3)
+            if heard is None:
                 continue
-            if op is WalterOp.HOLD:
-                hold = hold or int(Joint.of(facing + 1 - self.Yref))
+            op, who = heard
+            if plan is not None and op is not WalterOp.HOLD:
+                continue  # a mover is nobody's substrate (it opens its own pin to a mover)
+            if op is not WalterOp.HOLD and pivots and not walter_pivots_apart(pivots[0][1], g):
+                continue  # two repelling sides side by side would drive this module itself
+            yield Tx(u1, codec.encode_walter_answer(op))
+            if op is WalterOp.HOLD:  # the pin at the end of the side facing the mover
+                yield from self._relay_mirrored(F.JxOpen, int(Joint.of(facing + 1 - self.Yref)))
+                opened = True
             else:
-                pivot = pivot or (op, g)
-                w.passed(op, Cell(self.X, self.Y), facing)
+                pivots.append((op, g))
+                w.passed(op, who)
         self.IrSel(0)
         w.unanswered = plan is not None and not answered
         yield Delay(until(walter_actuation_at(baud)))
@@ -630,17 +643,22 @@ class CommBoard(Mcu):
             mi = int(Joint.of(plan.joint - self.Yref))
             code = F.MCW if plan.cw else F.MCCW
             yield from self._rotate(code, 0, True, mi, *THESIS_ROTATION_TIMING)
-            w.moved = True
+            w.after_move(Cell(self.X, self.Y))
             self._moved(mi, plan.cw)
-        elif pivot is not None:
-            op, g = pivot
-            cw = op is WalterOp.PIVOT_CW
-            si = int(Joint.of((g if cw else g + 1) - self.Yref))  # the pivot in this body
-            yield from self._rotate(0, F.SCW if cw else F.SCCW, False, si, *THESIS_ROTATION_TIMING)
-        elif hold is not None:
-            yield from self._relay_mirrored(F.JxOpen, hold)
+        elif pivots:
+            # the pivot in this body: the mover's joint j (g for CW, g + 1 for CCW) - Yref
+            turns = [(op is WalterOp.PIVOT_CW,
+                      int(Joint.of((g if op is WalterOp.PIVOT_CW else g + 1) - self.Yref)))
+                     for op, g in pivots]
+            if len(turns) == 1:
+                cw, si = turns[0]
+                yield from self._rotate(0, F.SCW if cw else F.SCCW, False, si, *THESIS_ROTATION_TIMING)
+            else:
+                dirs = sum(int(cw) << k for k, (cw, _) in enumerate(turns))
+                yield from self._relay_mirrored(F.STwo, dirs, turns[0][1], turns[1][1])
+        elif opened:  # a rotation ends with every joint closed; a holder closes them itself
             yield Delay(until(walter_hold_end_at(baud)))
-            yield from self._relay_mirrored(F.JxClose, hold)
+            yield from self._relay_mirrored(F.JxCloseAll)
         yield Delay(until(walter_log_at(baud)))
         w.settle(Cell(self.X, self.Y))
         position = codec.WALTER_NO_POSITION if w.position is None else w.position
@@ -649,8 +667,9 @@ class CommBoard(Mcu):
         if not w.done():
             yield Tx(u1, codec.WALTER_BUSY)
 
-    def _walter_side(self, tag: int, left: Callable[[int], int], end: int) -> Program:
-        """Wait until tick ``end`` for a side message starting with ``tag``; its op or None."""
+    def _walter_side(self, tag: int, left: Callable[[int], int], end: int, n: int) -> Program:
+        """Wait until tick ``end`` for a side message: ``tag`` and ``n`` bytes. (op, the byte
+        after its check, if any) or None."""
         u1 = self.uart1
         b = yield Rx(u1, left(end))
         while b not in (tag, TIMEOUT):
@@ -658,7 +677,7 @@ class CommBoard(Mcu):
         if b != tag:
             return None
         body = []
-        for _ in range(2):
+        for _ in range(n):
             body.append((yield Rx(u1, left(end))))
         op = codec.walter_side_op(bytes(body))
-        return None if op is None else WalterOp(op)
+        return None if op is None else (WalterOp(op), body[2] if n > 2 else None)

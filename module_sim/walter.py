@@ -55,25 +55,34 @@ def flips(contacts: list[bool]) -> int:
     return sum(contacts[i] != contacts[(i + 1) % 6] for i in range(6))
 
 
-def plan_move(contacts: list[bool], cw: bool) -> Plan | None:
-    """The rotation that rolls the module ``cw`` (or counter-clockwise) round the structure
-    it touches in one arc (``contacts[s-1]``: global side s touches): CW pivots at the arc's
-    first side clockwise (side j touches, j-1 does not: Table 4-3 row (j, CW)), CCW at its
-    last (j-1 touches, j does not: row (j, CCW))."""
-    if flips(contacts) != 2:
+def plan_move(contacts: list[bool], cw: bool, pivot: Side) -> Plan | None:
+    """One step round the structure (``contacts[s-1]``: global side s touches), starting from
+    the side towards the contact it last turned about: CW keeps the structure on its right,
+    so it looks counter-clockwise past every touching side; the last touching one is the
+    substrate, the free one after it the target (Table 4-3 row (j, CW) with j the substrate's
+    side). CCW is the mirror image (row (j, CCW), the substrate across side j - 1)."""
+    if not contacts[pivot - 1]:
         return None
-    for j in Side:
-        here, before = contacts[j - 1], contacts[Side.of(j - 1) - 1]
-        if cw and here and not before:
-            sub = j
-        elif not cw and before and not here:
-            sub = Side.of(j - 1)
-        else:
-            continue
-        rule = move_rule(j, Direction.CW if cw else Direction.CCW)
-        holders = tuple(s for s in Side if contacts[s - 1] and s != sub)
-        return Plan(cw, int(rule.joint), Side(sub), holders)
+    step = -1 if cw else 1
+    s = pivot
+    for _ in range(6):
+        nxt = Side.of(s + step)
+        if not contacts[nxt - 1]:
+            joint = int(s) if cw else int(Side.of(s + 1))
+            move_rule(joint, Direction.CW if cw else Direction.CCW)  # a Table 4-3 row
+            holders = tuple(h for h in Side if contacts[h - 1] and h != s)
+            return Plan(cw, joint, Side(s), holders)
+        s = nxt
     return None
+
+
+def walter_pivots_apart(first: Side, second: Side) -> bool:
+    """Whether a substrate can turn a second mover (across its global side ``second`` + 3)
+    in the round it turns one across ``first`` + 3: not twice the same side, and not two
+    sides side by side: each turn makes the side facing its mover negative, and two negative
+    sides that meet at a joint are a drive pair, which would turn the substrate itself
+    (docs/physics.md). So a substrate turns at most two movers, one on each flank."""
+    return (second - first) % 6 not in (0, 1, 5)
 
 
 @dataclass
@@ -89,6 +98,9 @@ class WalterState:
     position: int | None = None
     passed_cw: int = 0
     passed_ccw: int = 0
+    passed_by: set[int] = field(default_factory=set)  # positions of the modules that passed
+    pivot: Cell | None = None  # the contact it last turned about
+    plan: Plan | None = None  # this round's move
     free: bool = False
     delay: int = 0
     stopped: bool = False
@@ -134,6 +146,7 @@ class WalterState:
         """This round's move, or None. ``contacts[s-1]``: a neighbour across global side s."""
         self.last_round = round_
         self.moved = self.unanswered = False
+        self.plan = None
         if self.start is None:
             self.start = cell
         if self.is_anchor or self.stopped:
@@ -147,16 +160,30 @@ class WalterState:
                 return None
             self.free = True
             self.position = self.passed_cw + self.passed_ccw
+            beyond = self._beyond()
+            self.pivot = cell.neighbour(Side.of(beyond + 3)) if beyond is not None else None
             entry = self.entry
             if entry is None:
                 return None  # no goal for this position: the upload was short
             self.delay = entry.delay
-        if entry is None:
+        if entry is None or self.pivot is None:
             return None
         if self.delay > 0:
             self.delay -= 1
             return None
-        return plan_move(contacts, entry.cw)
+        towards = cell.side_towards(self.pivot)
+        if towards is None or not contacts[towards - 1]:
+            # the contact it last turned about has gone (it waited a round and that module
+            # moved on): any contact of its one arc leads to the same end of it
+            towards = next((s for s in Side if contacts[s - 1]), None) if flips(contacts) == 2 else None
+        self.plan = None if towards is None else plan_move(contacts, entry.cw, towards)
+        return self.plan
+
+    def after_move(self, cell: Cell) -> None:
+        """It made this round's move from ``cell``: it next turns about that substrate."""
+        if self.plan is not None:
+            self.pivot = cell.neighbour(self.plan.substrate)
+            self.moved = True
 
     def settle(self, cell: Cell) -> None:
         """After the round's moves: a module that stands in its goal stops there for good."""
@@ -164,26 +191,17 @@ class WalterState:
         if self.free and entry is not None and cell == entry.goal:
             self.stopped = True
 
-    def passed(self, op: WalterOp, cell: Cell, mover: Side) -> None:
-        """A neighbour across global side ``mover`` asks this module to be its substrate. While
-        it waits in I, a module passing it is counted, in the direction it rotates, on the
-        move that ends in the groove between it and the next module towards the anchor: every
-        passing module makes that move once (rounding the end of I it pivots twice on the end
-        module, first into the corner beyond the groove)."""
-        if self.free or self.done() or op is WalterOp.HOLD:
+    def passed(self, op: WalterOp, position: int) -> None:
+        """The mover at ``position`` asks this module to be its substrate: while it waits in
+        I, that mover passes it (counted once, however often it turns about it), in the
+        direction it rotates."""
+        if self.free or self.done() or op is WalterOp.HOLD or position in self.passed_by:
             return
-        beyond = self._beyond()
-        if beyond is None:
-            return
-        cw = op is WalterOp.PIVOT_CW
-        at = cell.neighbour(mover)
-        towards_me = Side.of(mover + 3)
-        goal = at.neighbour(Side.of(towards_me - 1) if cw else Side.of(towards_me + 1))
-        if goal in (cell.neighbour(Side.of(beyond + 2)), cell.neighbour(Side.of(beyond + 4))):
-            if cw:
-                self.passed_cw += 1
-            else:
-                self.passed_ccw += 1
+        self.passed_by.add(position)
+        if op is WalterOp.PIVOT_CW:
+            self.passed_cw += 1
+        else:
+            self.passed_ccw += 1
 
     def flags(self) -> int:
         """The ``WalterLog`` flags byte of this round."""

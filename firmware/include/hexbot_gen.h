@@ -37,12 +37,12 @@
 #define LOCALIZE_STEP_TICKS 1944
 /* a Walter round at the IR baud rate (ticks from the beat), its rotation timing */
 #define WALTER_MUX_SETTLE_TICKS 2
-#define WALTER_HOLD_END_AT 189
-#define WALTER_WINDOW_TICKS 26
-#define WALTER_ACTUATION_AT 164
-#define WALTER_LOG_AT 209
-#define WALTER_BUSY_AT 217
-#define WALTER_ROUND_TICKS 223
+#define WALTER_HOLD_END_AT 207
+#define WALTER_WINDOW_TICKS 29
+#define WALTER_ACTUATION_AT 182
+#define WALTER_LOG_AT 227
+#define WALTER_BUSY_AT 235
+#define WALTER_ROUND_TICKS 241
 #define WALTER_ROTATION_TICKS {8, 4, 9}
 #define UART0_UBRR 12
 #define DEBUG_UBRR 12
@@ -61,6 +61,7 @@
 #define FC_SPTest 15
 #define FC_SNTest 16
 #define FC_WalterLog 17
+#define FC_STwo 18
 #define FC_TurnOffAll 20
 #define FC_MCW 21
 #define FC_MCCW 22
@@ -93,6 +94,7 @@
 #define FC_WalterSetup 51
 #define FC_WalterGoal 52
 #define FC_WalterBeat 53
+#define FC_LSTwo 54
 #define FC_LMCW 56
 #define FC_LMCCW 57
 #define FC_LSCW 58
@@ -125,6 +127,7 @@
     {15, 1, 2, 0}, \
     {16, 1, 2, 0}, \
     {17, 1, 4, 1}, \
+    {18, 1, 3, 1}, \
     {20, 1, 0, 0}, \
     {21, 1, 4, 0}, \
     {22, 1, 4, 0}, \
@@ -156,6 +159,7 @@
     {51, 2, 5, 1}, \
     {52, 2, 7, 1}, \
     {53, 2, 2, 1}, \
+    {54, 2, 3, 1}, \
     {56, 2, 4, 0}, \
     {57, 2, 4, 0}, \
     {58, 2, 4, 0}, \
@@ -185,6 +189,7 @@
     {15, 36, 0}, \
     {16, 37, 0}, \
     {17, 0, 0}, \
+    {18, 54, 0}, \
     {20, 45, 0}, \
     {21, 56, 0}, \
     {22, 57, 0}, \

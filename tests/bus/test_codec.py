@@ -4,8 +4,8 @@ import pytest
 from hypothesis import given, strategies as st
 
 from bus import codec
-from bus.codec import (WALTER_BUSY, WALTER_NO_POSITION, Kind, Link, encode_walter_log,
-                       encode_walter_side, parse, walter_side_op)
+from bus.codec import (WALTER_BUSY, WALTER_NO_POSITION, Kind, Link, encode_walter_answer,
+                       encode_walter_log, encode_walter_request, parse, walter_side_op)
 from bus.functions import FUNCTIONS, FunctionCode, WalterFlag, WalterOp, lookup, used_codes
 
 byte = st.integers(0, 255)
@@ -136,12 +136,13 @@ def test_noise_reasons(raw, reason):
 
 def test_function_table_is_complete_and_consistent():
     assert FunctionCode.MCW == 21 and lookup("mcw").code == 21 and lookup(21).name == "MCW"
-    unused = [6, 7, 8, 9, 10, 18, 19, 26, 27, 54, 55, 69, 70, 75]
+    unused = [6, 7, 8, 9, 10, 19, 26, 27, 55, 69, 70, 75]
     assert FUNCTIONS[63].name == "Version" and FUNCTIONS[64].name == "SelfTest"  # ours (v2)
     # ours (v2): the distributed reconfiguration's upload, beat and debug line
-    assert [FUNCTIONS[c].name for c in (51, 52, 53, 17)] == ["WalterSetup", "WalterGoal", "WalterBeat",
-                                                            "WalterLog"]
-    assert all(FUNCTIONS[c].profile == "v2" for c in (51, 52, 53, 17))
+    walter = (51, 52, 53, 17, 18, 54)
+    assert [FUNCTIONS[c].name for c in walter] == ["WalterSetup", "WalterGoal", "WalterBeat",
+                                                  "WalterLog", "STwo", "LSTwo"]
+    assert all(FUNCTIONS[c].profile == "v2" for c in walter)
     assert all(not FUNCTIONS[c].used for c in unused)
     assert all(FUNCTIONS[c].board.value == "control" for c in (1, 2, 3, 4, 5, 11, 12, 13, 14, 15, 16,
                                                                20, 21, 22, 23, 24))
@@ -164,16 +165,15 @@ def test_encode_rejects_bad_arguments():
 
 # --- v2 Walter rounds (docs/protocol.md) ------------------------------------------------------
 @pytest.mark.parametrize("op", list(WalterOp))
-@pytest.mark.parametrize("answer", [False, True])
-def test_walter_side_messages_round_trip(op, answer):
-    raw = encode_walter_side(op, answer=answer)
-    f = parse("side", raw)
-    assert f.kind is (Kind.WALTER_ANSWER if answer else Kind.WALTER_REQUEST)
-    assert f.view == {"op": op.name.lower(), "valid": True}
+def test_walter_side_messages_round_trip(op):
+    f = parse("side", encode_walter_request(op, 7))
+    assert f.kind is Kind.WALTER_REQUEST and f.view == {"op": op.name.lower(), "valid": True, "position": 7}
+    f = parse("side", encode_walter_answer(op))
+    assert f.kind is Kind.WALTER_ANSWER and f.view == {"op": op.name.lower(), "valid": True}
 
 
 def test_a_garbled_walter_side_message_does_not_check():
-    raw = bytearray(encode_walter_side(WalterOp.PIVOT_CW))
+    raw = bytearray(encode_walter_request(WalterOp.PIVOT_CW, 0))
     raw[2] ^= 0x10  # one bit of the complement lost
     assert parse("side", bytes(raw)).view["valid"] is False
     assert walter_side_op(bytes([0, 0xFF])) is None  # a complement that checks, but no such op

@@ -40,11 +40,15 @@ orientation = 5
 """
 #: Position 0 (m3) rolls CW over the top into (0, 1) in three rounds (round the end of I,
 #: into the groove, over the anchor); position 1 (m2) is free in round 3 (m3 has left the
-#: groove beside it) and waits one round (delay 1): in round 3 both would pivot on the anchor,
-#: which runs one substrate program at a time. Then it rolls CCW under the anchor into (0, -1).
-CHAIN3_PROBLEM = WalterProblem(3, 2, 0, Cell(0, 0), ((Cell(0, 1), True, 0), (Cell(0, -1), False, 1)))
-CHAIN3_MOVES = [(1, "m3", "CW", (-2, 1)), (2, "m3", "CW", (-1, 1)), (3, "m3", "CW", (0, 1)),
-                (4, "m2", "CCW", (0, -1))]
+#: groove beside it) and asks at once to go CCW under the anchor into (0, -1). In round 3 both
+#: would turn about the anchor from two sides that meet at a joint, which would make the
+#: anchor's two repelling sides a drive pair of its own: the anchor answers the first to ask
+#: (m2, in the window of global direction 3; m3 asks in window 4), so m2 goes, m3 waits a
+#: round (its log line says a request went unanswered) and goes over the anchor in round 4.
+#: m2 and m3, side by side in round 3, each open their own pin on the other.
+CHAIN3_PROBLEM = WalterProblem(3, 2, 0, Cell(0, 0), ((Cell(0, 1), True, 0), (Cell(0, -1), False, 0)))
+CHAIN3_MOVES = [(1, "m3", "CW", (-2, 1)), (2, "m3", "CW", (-1, 1)), (3, "m2", "CCW", (0, -1)),
+                (4, "m3", "CW", (0, 1))]
 
 
 class Rig(FleetRig):
@@ -98,7 +102,7 @@ def test_moves_round_by_round(chain3):
 
 
 def test_the_pc_stops_at_the_first_silent_busy_slot(chain3):
-    # m2 arrives last, in round 4: the busy slot of round 4 is silent
+    # m3 arrives last, in round 4: its busy slot is silent
     assert chain3.result.done and chain3.result.rounds == 4
     assert all(chain3.result.busy[:3]) and chain3.result.busy[3] == 0
 
@@ -121,10 +125,11 @@ def test_each_module_logs_every_round_on_its_debug_uart(chain3):
     assert all(len(v) == chain3.result.rounds for v in by_module.values())
     m3, m2 = by_module["m3"], by_module["m2"]
     assert [v["position"] for v in m3] == [0] * 4 and all(v["direction"] == "CW" for v in m3)
-    assert [v["moved"] for v in m3] == [True, True, True, False] and m3[2]["stopped"]
-    # m2 waits in I while m3 rounds the end (counting it once), is free in round 3, waits its
-    # delay, then goes CCW from position 1
+    assert [v["moved"] for v in m3] == [True, True, False, True] and m3[3]["stopped"]
+    assert [v["unanswered"] for v in m3] == [False, False, True, False]
+    # m2 waits in I while m3 rounds the end (which turns about it twice and is counted once),
+    # is free in round 3 and goes CCW from position 1
     assert [v["free"] for v in m2] == [False, False, True, True]
-    assert [v["delay"] for v in m2][2:] == [0, 0] and [v["moved"] for v in m2] == [False] * 3 + [True]
-    assert m2[-1]["position"] == 1 and m2[-1]["direction"] == "CCW" and m2[-1]["stopped"]
+    assert [v["moved"] for v in m2] == [False, False, True, False]
+    assert m2[-1]["position"] == 1 and m2[-1]["direction"] == "CCW" and m2[2]["stopped"]
     assert all(v["anchor"] and not v["moved"] for v in by_module["m1"])
