@@ -56,6 +56,7 @@ typedef struct {
     hexbot_io_t *io;
     hexbot_flush_fn *flush;
     uint8_t *power_on;
+    const uint8_t *pullups; /* the program's program_pullups: its ports at power-up */
 } prog_t;
 
 typedef struct {
@@ -672,7 +673,8 @@ static int load(core_t *c, int k, const char *path, const uint8_t *power_on)
     p->set_pins = (void (*)(void *, const uint8_t *))dlsym(p->lib, "hexbot_set_pins");
     p->io = (hexbot_io_t *)dlsym(p->lib, "hexbot_io");
     p->flush = (hexbot_flush_fn *)dlsym(p->lib, "hexbot_flush");
-    if (!size || !p->step || !p->setup || !p->set_pins || !p->io || !p->flush) {
+    p->pullups = (const uint8_t *)dlsym(p->lib, "program_pullups");
+    if (!size || !p->step || !p->setup || !p->set_pins || !p->io || !p->flush || !p->pullups) {
         snprintf(c->error, sizeof c->error, "%s is not a hexbot host library (make -C firmware host)", path);
         return -1;
     }
@@ -891,6 +893,9 @@ void core_power_up(core_t *c, uint32_t b, uint64_t t, uint32_t byte_ns0, uint32_
     bd->on = 1;
     bd->byte_ns[0] = byte_ns0;
     bd->byte_ns[1] = byte_ns1;
+    /* hexbot_setup sets the board's ports to its pull-ups without an event: the records start
+     * from them, as the Mcu's ports do (control_board/comm_board: board_init's pull-ups) */
+    memcpy(bd->port, p->pullups, sizeof bd->port);
     p->setup(state, t, byte_ns0, byte_ns1);
     p->set_pins(state, pins);
     step_board(c, b);
