@@ -18,6 +18,7 @@ from bus.timing import (BOOT_JTEST_ROUNDS, BOOT_JTEST_TICKS, BOOT_SETTLE_TICKS, 
                         Baud)
 
 from .avr import Delay, Mcu, Program, Rx, Tx, Uart
+from .framing import read_frame
 from .profiles import Profile
 
 _R, _L, _STAR = ord("R"), ord("L"), ord("*")
@@ -244,11 +245,18 @@ class ControlBoard(Mcu):
 
     def listen(self) -> Program:
         u0, u1 = self.uart0, self.uart1
-        while (yield Rx(u0)) != _STAR:
-            pass
-        msg = []
-        for _ in range(5):
-            msg.append((yield Rx(u0)))
+        if self.profile.checked_frames:
+            # v2: the whole frame, '#' included, before the echo: after a long command the
+            # rest of a frame that overran the input is dropped, not read as the next one
+            msg = yield from read_frame(u0, codec.RELAY_FRAME_LEN)
+            if msg is None:
+                return
+        else:
+            while (yield Rx(u0)) != _STAR:
+                pass
+            msg = []
+            for _ in range(5):
+                msg.append((yield Rx(u0)))
         yield Tx(u0, bytes([msg[0]]))  # confirm to the comm board: echo the code
         yield Tx(u1, codec.PREAMBLE)
         yield Tx(u1, b"ACK" + bytes([msg[0]]) + codec.EOL)

@@ -93,7 +93,10 @@ enum { PT_WAITING = 0, PT_DONE = 1 };
          (dst) = board_rx_ready(uart) ? board_rx_read(uart) : ACK_TIMEOUT; } while (0)
 /* The same, telling a timeout apart from a received byte (v2): `timed_out` is 1 or 0. */
 #define RX_TL2(pt, uart, ticks, dst, timed_out) \
-    do { (pt)->t0 = (uint16_t)(board_ticks() + (ticks)); \
+    RX_UNTIL(pt, uart, (uint16_t)(board_ticks() + (ticks)), dst, timed_out)
+/* The same with a deadline: the overflow that makes board_ticks() == target. */
+#define RX_UNTIL(pt, uart, target, dst, timed_out) \
+    do { (pt)->t0 = (target); \
          PT_WAIT_UNTIL(pt, board_rx_ready(uart) || board_tick_reached((pt)->t0)); \
          (timed_out) = !board_rx_ready(uart); \
          (dst) = (timed_out) ? ACK_TIMEOUT : board_rx_read(uart); } while (0)
@@ -118,6 +121,16 @@ void port_change(uint8_t port, uint8_t mask, uint8_t set);
 void pin_change(const uint8_t *ports, const uint8_t *masks, int16_t i, uint8_t set);
 /* All six pins of a table: one write per port, in port order (as the model does). */
 void pins_change(const uint8_t *ports, const uint8_t *masks, uint8_t set);
+
+/* v2: read one frame of `len` bytes, '*' ... '#', into buf (room for len - 1): ok = 1 when
+ * buf[0..len - 2) holds what lies between them (module_sim/framing.py, docs/protocol.md).
+ * After '*' each byte must come within FRAME_BYTE_TICKS; a frame not ending in '#'
+ * resynchronises on a '*' inside it. */
+typedef struct {
+    pt_t pt;
+    uint8_t n, byte, timed_out, ok;
+} frame_t;
+uint8_t co_frame(frame_t *f, uint8_t uart, uint8_t *buf, uint8_t len);
 
 /* One rotation (bus/rotations.py) through a board's own actions. Its state is the
  * caller's: a rotation_t for each place that runs one. */

@@ -107,3 +107,46 @@ uint8_t co_rotation(rotation_t *r, const int8_t *steps, uint8_t i, const uint8_t
     }
     PT_END(pt);
 }
+
+#if HEXBOT_V2
+/* The frame in buf[0..n) lacks its '#': keep what follows its first '*', or nothing. */
+static uint8_t frame_resync(uint8_t *buf, uint8_t n)
+{
+    for (uint8_t k = 0; k < n; k++) {
+        if (buf[k] == BYTE_START) {
+            uint8_t m = 0;
+            for (uint8_t j = k + 1; j < n; j++)
+                buf[m++] = buf[j];
+            return m;
+        }
+    }
+    return 0xFF;
+}
+
+uint8_t co_frame(frame_t *f, uint8_t uart, uint8_t *buf, uint8_t len)
+{
+    pt_t *pt = &f->pt;
+    PT_BEGIN(pt);
+    f->ok = 0;
+    do {
+        RX(pt, uart, f->byte);
+    } while (f->byte != BYTE_START);
+    f->n = 0;
+    for (;;) {
+        RX_TL2(pt, uart, FRAME_BYTE_TICKS, f->byte, f->timed_out);
+        if (f->timed_out)
+            PT_EXIT(pt); /* a silence inside the frame: its rest was lost */
+        buf[f->n++] = f->byte;
+        if (f->n < len - 1)
+            continue;
+        if (buf[len - 2] == BYTE_END) {
+            f->ok = 1;
+            PT_EXIT(pt);
+        }
+        f->n = frame_resync(buf, f->n);
+        if (f->n == 0xFF)
+            PT_EXIT(pt);
+    }
+    PT_END(pt);
+}
+#endif

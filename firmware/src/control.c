@@ -159,7 +159,10 @@ static uint8_t execute(uint8_t code, const uint8_t *a)
 }
 
 static pt_t pt_main;
-static uint8_t byte, msg[5], k;
+static uint8_t byte, msg[RELAY_FRAME_LEN - 1], k; /* code a b c d, and the '#' (v2) */
+#if HEXBOT_V2
+static frame_t relay_in;
+#endif
 static uint8_t line[10]; /* "ACK" c EOL, or "MSG" 5 bytes EOL */
 
 static uint8_t co_main(void)
@@ -191,12 +194,20 @@ static uint8_t co_main(void)
     TX_P(pt, UART1, S_CTR_LST);
     for (;;) {
         /* Listen(): '*' then five bytes: code a b c d */
+#if HEXBOT_V2
+        /* and the '#' before the echo: after a long command the rest of a frame that overran
+         * the input is dropped, not read as the next one (co_frame) */
+        PT_CALL(pt, co_frame(&relay_in, UART0, msg, RELAY_FRAME_LEN));
+        if (!relay_in.ok)
+            continue;
+#else
         do {
             RX(pt, UART0, byte);
         } while (byte != BYTE_START);
         for (k = 0; k < 5; k++) {
             RX(pt, UART0, msg[k]);
         }
+#endif
         TX(pt, UART0, msg, 1); /* confirm to the comm board: echo the code */
         TX_P(pt, UART1, S_PREAMBLE);
         line[0] = TXT_ACK[0], line[1] = TXT_ACK[1], line[2] = TXT_ACK[2], line[3] = msg[0];
