@@ -345,18 +345,21 @@ def explain(link: Link, raw: bytes | bytearray) -> str:
 
 # --- build -----------------------------------------------------------------------------
 def _arg_bytes(fn: Function, args: Iterable[int] | dict[str, int], width: int, filler: int) -> bytes:
+    # Only an argument left out (a keyword not given) is the filler unchecked: a given value
+    # equal to the filler (0 in a PC frame, 'N' in a relay) is checked like any other.
     if isinstance(args, dict):
         unknown = set(args) - set(fn.arg_names)
         if unknown:
             raise ValueError(f"{fn.name} has no argument {sorted(unknown)}; it takes {fn.arg_names}")
         vals = [args.get(a.name, filler) for a in fn.args]
+        given = [(a, args[a.name]) for a in fn.args if a.name in args]
     else:
         vals = list(args)
+        given = list(zip(fn.args, vals))
     if len(vals) > width:
         raise ValueError(f"{fn.name}: {len(vals)} arguments do not fit {width} bytes")
-    for a, v in zip(fn.args, vals):
-        if v != filler:
-            a.check(v)
+    for a, v in given:
+        a.check(v)
     for v in vals:
         if not 0 <= v <= 255:
             raise ValueError(f"argument {v} is not a byte")
@@ -370,9 +373,10 @@ def encode_command(fn: str | int | Function, *args: int, **kwargs: int) -> bytes
     return START + bytes([f.code]) + body + END
 
 
-def encode_relay(code: int, *args: int) -> bytes:
+def encode_relay(code: int | Function, *args: int) -> bytes:
     """Comm -> control frame over UART0: ``'*' code a b c d '#'``, unused = 'N'."""
-    return START + bytes([code]) + _arg_bytes(FUNCTIONS[code], args, 4, ARG_UNUSED) + END
+    f = code if isinstance(code, Function) else FUNCTIONS[code]
+    return START + bytes([f.code]) + _arg_bytes(f, args, 4, ARG_UNUSED) + END
 
 
 def role_prefix(mobile: bool, substrate: bool) -> bytes:

@@ -19,7 +19,7 @@ import shutil
 import subprocess
 from pathlib import Path
 
-from bus.chip import AVRDUDE_PART, ISP_BITCLOCK_US, Fuses
+from bus.chip import AVRDUDE_PART, ISP_BITCLOCK_US, SIGNATURE, Fuses
 from bus.errors import HexbenchError
 
 from .isp import MEMORY_SIZES, read_ihex
@@ -28,6 +28,8 @@ from .isp import MEMORY_SIZES, read_ihex
 BACKUP_MEMORIES = ("flash", "eeprom", "lfuse", "hfuse", "efuse")
 _SILENT = "programmer is not responding"
 _VERIFIED = re.compile(r"(\d+) bytes? of (\w+) verified")
+#: "device signature = 0x1e9403 (probably m16)", "... = 0x000000 (retrying)"
+_SIGNATURE = re.compile(r"device signature = 0x([0-9a-fA-F]{6})(?: \(probably ([^)]+)\))?")
 
 
 class AvrdudeError(HexbenchError):
@@ -90,14 +92,26 @@ class Avrdude:
             if "cannot open port" in line:
                 return f"{said} (avrdude {on})"
             if "expected signature" in line:
-                found = [ln.split("=", 1)[1].strip() for ln in lines if "device signature =" in ln]
-                return f"the chip is not an ATmega162: its signature is {(found or ['unreadable'])[0]}"
+                return self._signature_reason(text)
             if line.startswith("avrdude: verifying "):
                 memory = said.split()[1]
             if "!= input" in line:
                 return f"avrdude wrote the {memory} but reads back other bytes: {line.strip()}"
         errors = [ln.strip() for ln in lines if "error" in ln] or [ln.strip() for ln in lines if ln.strip()]
         return f"avrdude failed ({on}): {(errors or ['no message'])[0]}"
+
+    def _signature_reason(self, text: str) -> str:
+        """A signature of all zeros or all ones is MISO held at one level: no chip answers."""
+        found = _SIGNATURE.findall(text)
+        if not found:
+            return "the chip's signature is unreadable"
+        signature, part = found[-1]  # avrdude's last try, without its "(retrying)"
+        if signature.lower() in ("000000", "ffffff"):
+            return (f"no chip answers the programmer (-c {self.programmer}; signature 0x{signature}): "
+                    "check the board's power, the ISP cable and the bit clock (--bitclock)")
+        return (f"the chip is not an ATmega162: its signature is 0x{signature}"
+                + (f" ({part})" if part and not part.startswith(".") else "")
+                + f", not 0x{SIGNATURE.hex()}")
 
     # -- the steps ----------------------------------------------------------------------------------
     def read(self, folder: str | os.PathLike[str],

@@ -129,6 +129,7 @@ class Atmega162:
         self.memories = {name: bytearray(b"\xff" * size) for name, size in MEMORY_SIZES.items()}
         self.fuses = fuses
         self.calibration = 0xA5  # the RC oscillator's factory calibration byte
+        self.signature = SIGNATURE  # another part in the socket has its own
         self.erases = 0
         self._flash_buffer: dict[int, int] = {}  # the page buffer: byte offset in page -> byte
         self._eeprom_buffer: dict[int, int] = {}
@@ -226,7 +227,7 @@ class Atmega162:
                 self.write_eeprom(page + off, bytes((b,)))
             self._eeprom_buffer.clear()
         elif op == 0x30:  # read signature byte
-            return SIGNATURE[b2 & 3] if b2 & 3 < len(SIGNATURE) else 0x00
+            return self.signature[b2 & 3] if b2 & 3 < len(self.signature) else 0x00
         elif op == 0x38:  # read calibration byte
             return self.calibration
         elif (op, b1) in _READS:
@@ -241,6 +242,19 @@ class Atmega162:
             elif b1 == 0x53:  # programming enable: echoed in the third byte
                 return b2
         return 0x00  # also "ready" for the 0xF0 poll
+
+
+class EmptySocket(Atmega162):
+    """No chip answers the programmer (an empty socket, an unpowered board, a loose ISP cable,
+    or SCK too fast for the chip): MISO stays at one ``level``, so every instruction's answer
+    byte, the signature's too, is 0x00 (MISO pulled low) or 0xFF (floating high)."""
+
+    def __init__(self, level: int) -> None:
+        super().__init__()
+        self.level = level
+
+    def spi(self, instr: bytes) -> int:
+        return self.level
 
 
 _READS = {(0x50, 0x00): "lfuse", (0x58, 0x08): "hfuse", (0x50, 0x08): "efuse", (0x58, 0x00): "lock"}
@@ -378,7 +392,7 @@ class Stk500Programmer:
         if op == UNIVERSAL:
             return bytes((INSYNC, self.chip.spi(args), OK))
         if op == READ_SIGN:
-            return bytes((INSYNC,)) + SIGNATURE + bytes((OK,))
+            return bytes((INSYNC,)) + bytes(self.chip.spi(bytes((0x30, 0, i, 0))) for i in range(3)) + bytes((OK,))
         if op == READ_PAGE:
             data = self._page(args[2], args[0] << 8 | args[1])
             return bytes((INSYNC,)) + data + bytes((OK,)) if data is not None else bytes((INSYNC, FAILED))
@@ -423,5 +437,5 @@ class Stk500Programmer:
         return bytes(memory[(start + i) % len(memory)] for i in range(size))
 
 
-__all__ = ["Atmega162", "FACTORY_FUSES", "MEMORY_SIZES", "Stk500Programmer", "format_ihex",
+__all__ = ["Atmega162", "EmptySocket", "FACTORY_FUSES", "MEMORY_SIZES", "Stk500Programmer", "format_ihex",
            "fuses_of", "fuses_text", "parse_ihex", "read_ihex"]

@@ -23,7 +23,7 @@ from bus.chip import FUSES, THESIS_FUSES, BoardKind, Fuses, board_record, read_b
 from hexbench.cli import main
 from hexbench.firmware import flash_image
 from hil.avrdude import BACKUP_MEMORIES
-from hil.isp import (EEPROM_SIZE, FLASH_SIZE, MEMORY_SIZES, OK, SCK_DURATION, Atmega162,
+from hil.isp import (EEPROM_SIZE, FLASH_SIZE, MEMORY_SIZES, OK, SCK_DURATION, Atmega162, EmptySocket,
                      Stk500Programmer, format_ihex, parse_ihex, read_ihex)
 from hil.pty import Pty
 from processes import hexbench
@@ -158,6 +158,30 @@ def test_a_programmer_that_does_not_answer_is_one_line_and_exit_2(tmp_path, caps
     assert len(err) == 1 and "does not answer" in err[0] and "nothing was written" in err[0], err
     assert took < SILENT_BOUND_S, f"took {took:.1f} s"
     assert list((tmp_path / "backups").iterdir()) == []  # a failed backup leaves no folder
+
+
+@needs_avrdude
+@pytest.mark.parametrize("level", [0x00, 0xFF])
+def test_a_chip_that_does_not_answer_is_not_called_a_wrong_chip(tmp_path, capsys, level):
+    """MISO held low or high reads as signature 0x000000 / 0xffffff: no chip answers (power,
+    cable, bit clock), which is not another part; avrdude's "(retrying)" stays out."""
+    with Stk500Programmer.on_pty(tmp_path / "isp", EmptySocket(level)) as p:
+        assert flash("comm", p.path, tmp_path / "backups") == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1, err
+    assert f"no chip answers the programmer (-c stk500v1; signature 0x{level:02x}{level:02x}{level:02x})" in err[0]
+    assert "power" in err[0] and "--bitclock" in err[0] and "nothing was written" in err[0]
+    assert "retrying" not in err[0] and "not an ATmega162" not in err[0]
+    assert list((tmp_path / "backups").iterdir()) == []
+
+
+@needs_avrdude
+def test_another_part_is_named_by_its_signature(programmer, tmp_path, capsys):
+    programmer.chip.signature = bytes((0x1E, 0x94, 0x03))  # an ATmega16 in the socket
+    assert flash("comm", programmer.path, tmp_path / "backups") == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and "the chip is not an ATmega162: its signature is 0x1e9403 (m16), not 0x1e9404" in err[0], err
+    assert programmer.chip.erases == 0
 
 
 def test_no_avrdude_is_one_line_and_exit_2(tmp_path, capsys, monkeypatch):
