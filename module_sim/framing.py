@@ -1,8 +1,7 @@
-"""How a v2 board reads a frame of fixed length: ``*``, its body, ``#`` (docs/protocol.md).
+"""How the v2 comm board reads a frame from the PC: ``*``, nine bytes, ``#`` (docs/protocol.md).
 
-The comm board reads the PC's frames with it (IR, a body of 9 bytes), the control board the
-relay frames (UART0, 5 bytes); the C programs share the same reader (``co_frame`` in
-firmware/src/common.c). The thesis-2009 boards read ``*`` and the body only.
+The C program does the same in ``co_listen`` (firmware/src/comm.c). The thesis-2009 board
+reads ``*`` and nine bytes; the control board reads its relay frames in its own ``listen``.
 """
 
 from __future__ import annotations

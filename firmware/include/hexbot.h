@@ -122,16 +122,6 @@ void pin_change(const uint8_t *ports, const uint8_t *masks, int16_t i, uint8_t s
 /* All six pins of a table: one write per port, in port order (as the model does). */
 void pins_change(const uint8_t *ports, const uint8_t *masks, uint8_t set);
 
-/* v2: read one frame of `len` bytes, '*' ... '#', into buf (room for len - 1): ok = 1 when
- * buf[0..len - 2) holds what lies between them (module_sim/framing.py, docs/protocol.md).
- * After '*' each byte must come within FRAME_BYTE_TICKS; a frame not ending in '#'
- * resynchronises on a '*' inside it. */
-typedef struct {
-    pt_t pt;
-    uint8_t n, byte, timed_out, ok;
-} frame_t;
-uint8_t co_frame(frame_t *f, uint8_t uart, uint8_t *buf, uint8_t len);
-
 /* One rotation (bus/rotations.py) through a board's own actions. Its state is the
  * caller's: a rotation_t for each place that runs one. */
 enum { ROT_OPEN = 1, ROT_POS, ROT_NEG, ROT_CLOSE_ALL, ROT_OFF_ALL, ROT_WAIT };

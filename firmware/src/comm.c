@@ -813,12 +813,28 @@ static uint8_t co_dispatch(void)
     PT_END(pt);
 }
 
+#if HEXBOT_V2
+/* The frame did not end in '#': it was garbage with a '*' in it. Keep what follows the
+ * first '*' among frame[1..8] and the byte read in place of '#'; 0xFF if there is none. */
+static uint8_t resync(void)
+{
+    for (uint8_t k = 0; k < 10; k++) {
+        if (frame[k] == BYTE_START) {
+            uint8_t n = 0;
+            for (uint8_t j = k + 1; j < 10; j++)
+                frame[n++] = frame[j];
+            return n;
+        }
+    }
+    return 0xFF;
+}
+#endif
+
 static struct {
     pt_t pt;
-#if HEXBOT_V2
-    frame_t reader;
-#else
     uint8_t byte, n;
+#if HEXBOT_V2
+    uint8_t timed_out;
 #endif
 } listen;
 
@@ -826,15 +842,23 @@ static uint8_t co_listen(void)
 {
     pt_t *pt = &listen.pt;
     PT_BEGIN(pt);
-#if HEXBOT_V2
-    /* v2 reads the '#' too and resynchronises (co_frame) */
-    PT_CALL(pt, co_frame(&listen.reader, UART1, frame, PC_FRAME_LEN));
-    if (!listen.reader.ok)
-        PT_EXIT(pt);
-#else
     do {
         RX(pt, UART1, listen.byte);
     } while (listen.byte != BYTE_START);
+#if HEXBOT_V2
+    /* v2 reads the '#' too (module_sim/framing.py): each byte within FRAME_BYTE_TICKS, a
+     * silence ends the frame unread; one without its '#' resynchronises on a '*' inside it */
+    for (listen.n = 0; listen.n < PC_FRAME_LEN - 1;) {
+        RX_TL2(pt, UART1, FRAME_BYTE_TICKS, frame[listen.n], listen.timed_out);
+        if (listen.timed_out)
+            PT_EXIT(pt);
+        if (++listen.n == PC_FRAME_LEN - 1 && frame[PC_FRAME_LEN - 2] != BYTE_END) {
+            listen.n = resync();
+            if (listen.n == 0xFF)
+                PT_EXIT(pt);
+        }
+    }
+#else
     for (listen.n = 0; listen.n < 9; listen.n++) {
         RX(pt, UART1, frame[listen.n]);
     }

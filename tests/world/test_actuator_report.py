@@ -10,7 +10,6 @@ from bus.codec import Kind, Link
 from bus.functions import FunctionCode as F
 from bus.messages import Actuators
 from bus.scenario import loads
-from bus.timing import Baud, byte_time_ns
 from fleet_rig import FleetRig
 
 ONE = '[[modules]]\ncell = [0, 0]\nid = 1\n'
@@ -53,12 +52,10 @@ def test_a_rotation_is_reported_step_by_step_under_v2_only(profile):
         assert sum(reports[0].view["joints_open"]) == 2  # J(i), J(i+1)
         assert reports[1].view["magnets"].count(-1) == 2  # S(i), S(i-1) negative
         assert module.actuators().joints_open == [False] * 6
-        # each report starts on the wire when its step changed the ports, the first one behind
-        # the last two bytes of the debug lines before it: the steps are t1 = 8 and t2 = 4
-        # ticks apart, the report 8 bytes at 4800 baud
+        # each report starts on the wire when its step changed the ports: the steps are
+        # t1 = 8 and t2 = 4 ticks apart, the report 8 bytes at 4800 baud
         t = [e.first_byte_ns for e in reports]
-        tail = 2 * byte_time_ns(Baud.DEBUG)
-        assert t[1] - t[0] >= 7 * 9_984_000 - tail and t[2] - t[1] >= 3 * 9_984_000
+        assert t[1] - t[0] >= 7 * 9_984_000 and t[2] - t[1] >= 3 * 9_984_000
     finally:
         rig.close()
 
