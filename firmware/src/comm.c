@@ -338,8 +338,16 @@ static void mirror_act(uint8_t op, int16_t i)
 static rotation_t led_rotation; /* LMCW..LSCCW sent by the PC */
 
 /* --- relay to the control board ----------------------------------------------------- */
-/* MSG(): '*' code a b c d '#' on UART0 (unused arguments 'N'), then wait for the echo. */
-static struct { pt_t pt; uint8_t frame[RELAY_FRAME_LEN], result; } relay;
+/* MSG(): '*' code a b c d '#' on UART0 (unused arguments 'N'), then wait for the echo:
+ * any byte (thesis), the code itself (v2: else ACK_TIMEOUT when the wait is over). */
+static struct {
+    pt_t pt;
+    uint8_t frame[RELAY_FRAME_LEN], result;
+#if HEXBOT_V2
+    uint8_t timed_out;
+    uint16_t due;
+#endif
+} relay;
 
 static uint8_t co_relay(uint8_t code, const uint8_t *a)
 {
@@ -356,8 +364,19 @@ static uint8_t co_relay(uint8_t code, const uint8_t *a)
         relay.frame[2] = switch_bits(); /* the control board reports them with the DIP id */
 #endif
     relay.frame[6] = BYTE_END;
+#if HEXBOT_V2
+    /* an echo that came after its wait is stale: it would confirm the next relay of its code */
+    while (board_rx_ready(UART0))
+        (void)board_rx_read(UART0);
+    TX(pt, UART0, relay.frame, RELAY_FRAME_LEN);
+    relay.due = (uint16_t)(board_ticks() + ECHO_TIMEOUT_TICKS);
+    do {
+        RX_UNTIL(pt, UART0, relay.due, relay.result, relay.timed_out);
+    } while (!relay.timed_out && relay.result != relay.frame[1]);
+#else
     TX(pt, UART0, relay.frame, RELAY_FRAME_LEN);
     RX_TL(pt, UART0, ECHO_TIMEOUT_TICKS, relay.result);
+#endif
     PT_END(pt);
 }
 
@@ -378,7 +397,9 @@ static uint8_t co_rotate(uint8_t code, uint8_t i, uint8_t t1, uint8_t t2, uint8_
     rotate.args[0] = i, rotate.args[1] = t1, rotate.args[2] = t2, rotate.args[3] = t3;
     PT_CALL(pt, co_relay(rotate.code, rotate.args));
     rotate.ack = relay.result;
-    PT_CALL(pt, co_rotate_mirror());
+    if (!HEXBOT_V2 || rotate.ack == rotate.code) { /* v2 mirrors only what was confirmed */
+        PT_CALL(pt, co_rotate_mirror());
+    }
     PT_END(pt);
 }
 
@@ -801,7 +822,8 @@ static uint8_t co_dispatch(void)
     if (dispatch.board == BOARD_CONTROL) {
         PT_CALL(pt, co_relay(frame[0], &frame[1]));
         dispatch.ack = relay.result;
-        for (dispatch.k = 0; dispatch.k < 2; dispatch.k++) {
+        /* v2 mirrors only what the control board confirmed: the LEDs would show a coil off */
+        for (dispatch.k = HEXBOT_V2 && dispatch.ack != frame[0] ? 2 : 0; dispatch.k < 2; dispatch.k++) {
             dispatch.mirror = fn_mirror(frame[0], dispatch.k); /* looked up once, not every step */
             PT_CALL(pt, run_comm(dispatch.mirror, &frame[1]));
         }
@@ -835,7 +857,13 @@ static uint8_t resync(void)
 }
 #endif
 
-static struct { pt_t pt; uint8_t byte, n; } listen;
+static struct {
+    pt_t pt;
+    uint8_t byte, n;
+#if HEXBOT_V2
+    uint8_t timed_out;
+#endif
+} listen;
 
 static uint8_t co_listen(void)
 {
@@ -844,21 +872,22 @@ static uint8_t co_listen(void)
     do {
         RX(pt, UART1, listen.byte);
     } while (listen.byte != BYTE_START);
+#if HEXBOT_V2
+    /* v2 reads the '#' too (module_sim/framing.py): each byte within FRAME_BYTE_TICKS, a
+     * silence ends the frame unread; one without its '#' resynchronises on a '*' inside it */
+    for (listen.n = 0; listen.n < PC_FRAME_LEN - 1;) {
+        RX_TL2(pt, UART1, FRAME_BYTE_TICKS, frame[listen.n], listen.timed_out);
+        if (listen.timed_out)
+            PT_EXIT(pt);
+        if (++listen.n == PC_FRAME_LEN - 1 && frame[PC_FRAME_LEN - 2] != BYTE_END) {
+            listen.n = resync();
+            if (listen.n == 0xFF)
+                PT_EXIT(pt);
+        }
+    }
+#else
     for (listen.n = 0; listen.n < 9; listen.n++) {
         RX(pt, UART1, frame[listen.n]);
-    }
-#if HEXBOT_V2
-    /* v2 reads the '#' too and resynchronises on a '*' inside a frame that lacks it */
-    RX(pt, UART1, frame[9]);
-    while (frame[9] != BYTE_END) {
-        listen.n = resync();
-        if (listen.n == 0xFF)
-            PT_EXIT(pt);
-        while (listen.n < 9) {
-            RX(pt, UART1, frame[listen.n]);
-            listen.n++;
-        }
-        RX(pt, UART1, frame[9]);
     }
 #endif
     substrate_turn = 0;
