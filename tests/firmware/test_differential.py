@@ -7,6 +7,7 @@ from __future__ import annotations
 import pytest
 
 from bus.codec import encode_command
+from bus.functions import FunctionCode as F
 from bus.timing import NS_PER_S, TICK_NS
 from module_sim.script import Event
 from toolchain import needs_avr
@@ -87,3 +88,18 @@ def test_a_relay_during_selftest_is_lost_cleanly_in_both_programs():
     assert _acks(firmware) == [64, ord("~"), 11]
     s3 = MAGNET_POS[3]
     assert _port(firmware, "control", s3.port) & s3.mask
+
+
+def test_a_frame_with_a_damaged_start_does_not_swallow_its_retries():
+    """Issue 50 item 3, its case: a Move sent with ``--timing 8,35,42`` whose '*' was damaged,
+    then sent again twice. Its arguments end in '#', '*': v2 resynchronised on the '*', took the
+    retry's t2 (35) for the '#' and answered ACK 35 to every retry. A frame after a silence is
+    read in step whatever its arguments: each retry runs (ACK 21, MCW)."""
+    from hexbench.firmware import compare, differential
+
+    move = encode_command("Move", 1, 1, 2, 9, 5, 8, 35, 42)
+    s = NS_PER_S
+    script = [(11 * s, b"+" + move[1:]), (13 * s, move), (16 * s, move)]
+    model, firmware = differential("v2", script, 19.0)
+    assert compare(model, firmware) == []
+    assert _acks(firmware) == [F.MCW, F.MCW]
