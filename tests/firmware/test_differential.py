@@ -103,3 +103,23 @@ def test_a_frame_with_a_damaged_start_does_not_swallow_its_retries():
     model, firmware = differential("v2", script, 19.0)
     assert compare(model, firmware) == []
     assert _acks(firmware) == [F.MCW, F.MCW]
+
+
+def test_id_0_is_never_an_address():
+    """Issue 50 item 4: a module without an id (its DIP switches all open) is neither
+    selected by ``Select 1 0`` nor ``Select 3 0`` (every module without an id, or whose id
+    byte timed out, would answer at once) nor moved by a ``Move`` naming 0. A broadcast
+    still reaches it."""
+    from hexbench.firmware import compare, differential
+
+    s = NS_PER_S
+    script = [(11 * s, encode_command("Select", 1, 0, 0)), (13 * s, encode_command("Report")),
+              (15 * s, encode_command("Select", 3, 0, 0)), (17 * s, encode_command("Report")),
+              (19 * s, encode_command("Move", 1, 0, 2, 0, 5, 8, 4, 9)),
+              (22 * s, encode_command("Select", 0, 0, 0)), (24 * s, encode_command("LOn"))]
+    model, firmware = differential("v2", script, 26.0, module_id=0)
+    assert compare(model, firmware) == []
+    assert not [e for e in firmware if e.what == "ir" and e.t_ns > 11 * s]  # no ACK, no POS
+    debug = bytes(int(e.detail, 16) for e in firmware if e.what == "debug" and e.t_ns > 11 * s)
+    assert b"MSG" not in debug  # nothing relayed: the Move ran on neither board
+    assert [e for e in firmware if e.what == "port" and e.detail.startswith("comm") and e.t_ns > 24 * s]
