@@ -123,3 +123,21 @@ def test_id_0_is_never_an_address():
     debug = bytes(int(e.detail, 16) for e in firmware if e.what == "debug" and e.t_ns > 11 * s)
     assert b"MSG" not in debug  # nothing relayed: the Move ran on neither board
     assert [e for e in firmware if e.what == "port" and e.detail.startswith("comm") and e.t_ns > 24 * s]
+
+
+@pytest.mark.parametrize("command", [("JTest", 1, 0), ("MCW", 2, 0, 0, 0), ("SCCW", 4, 0, 0, 0)],
+                         ids=lambda c: c[0])
+def test_a_zero_tick_pulse_changes_no_bit_and_is_not_reported(command):
+    """Issue 50 item 6: a command with t = 0 opens and closes its coils in one step. The
+    protocol reports a step that changes the bits; this one changes none, so neither
+    program sends an ACT line (the model sent an all-off one when it was the first actuator
+    activity after boot). After reported changes (JxOpen 1, JxClose 1) it is silent too."""
+    from hexbench.firmware import compare, differential
+
+    s = NS_PER_S
+    script = [(11 * s, encode_command(*command)), (13 * s, encode_command("JxOpen", 1)),
+              (15 * s, encode_command("JxClose", 1)), (17 * s, encode_command(*command))]
+    model, firmware = differential("v2", script, 19.0)
+    assert compare(model, firmware) == []
+    debug = bytes(int(e.detail, 16) for e in firmware if e.what == "debug" and e.t_ns > 11 * s)
+    assert debug.count(b"ACT") == 2
