@@ -221,6 +221,8 @@ def header() -> str:
             f"#define BYTE_LISTENING 0x{codec.HANDSHAKE_LISTENING[0]:02x}",
             f"#define PROBE_BYTES {{0x{codec.PROBE_BYTES[0]:02x}, 0x{codec.PROBE_BYTES[1]:02x}}}",
             f"#define COORD_OFFSET {codec.COORD_OFFSET}",
+            "/* v2: |X|, |Y| a module can be told, keep and report (the thesis sends none) */",
+            f"#define COORD_LIMIT {codec.COORD_LIMIT['v2']}",
             f"#define PC_FRAME_LEN {codec.PC_FRAME_LEN}", f"#define RELAY_FRAME_LEN {codec.RELAY_FRAME_LEN}",
             f"#define MSG1_LEN {codec.MSG1_LEN}",
             "/* what an image on the wrong board, or a board of unknown kind, prints (bus/chip.py) */"]

@@ -162,6 +162,13 @@ def rotate_offset(offset: tuple[int, int], steps: int) -> tuple[int, int]:
     return x, y
 
 
+def offset_in_frame(cell: "Cell", reference: "Cell", orientation: int) -> tuple[int, int]:
+    """The offset of ``cell`` from a module at ``reference`` whose orientation is
+    ``orientation``, in that module's frame: what the protocol carries once that module is the
+    reference (``Ref``: (0, 0), Yref 0). The inverse of turning a report into the global frame."""
+    return rotate_offset((cell.x - reference.x, cell.y - reference.y), -orientation)
+
+
 # --- body frame <-> global frame --------------------------------------------------
 def body_to_global(side: int, yref: int) -> Side:
     """Global side of body side ``side`` for a module whose ``Yref`` is ``yref``.

@@ -328,6 +328,8 @@ class CommBoard(Mcu):
                         continue
                     g = body_to_global(s, self.Yref)
                     there = Cell(self.X, self.Y).neighbour(g)
+                    if not (codec.msg1_carries(there.x) and codec.msg1_carries(there.y)):
+                        continue  # a cell MSG1 cannot carry: that neighbour stays unlocalized
                     self.IrSel(s)
                     yield Delay(LOCALIZE_MUX_SETTLE_TICKS)  # the listener is there
                     yield from self._pre()
@@ -534,6 +536,11 @@ class CommBoard(Mcu):
         confirms the move. It cannot know whether the move happened: the PC compares."""
         rule = move_rule(Joint.of(mi + self.Yref), Direction.CW if cw else Direction.CCW)
         goal = rule.cells(Cell(self.X, self.Y))[2]
+        if not (codec.msg1_carries(goal.x) and codec.msg1_carries(goal.y)):
+            # beyond what POS can report: the module no longer knows a cell it can say, so it
+            # is not localized (its boot state) rather than reporting a wrapped one
+            self.X = self.Y = self.Yref = self.L = 0
+            return
         self.X, self.Y = goal.x, goal.y
         self.Yref = orientation_after(self.Yref, rule.direction)
 

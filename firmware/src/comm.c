@@ -540,11 +540,17 @@ static uint16_t ticks_until(uint16_t target)
     return n < 1 ? 1 : (uint16_t)n;
 }
 
-/* MSG1 after '*' (body[1..7]): sign, tens, units of X and of Y, then the side. */
+/* Whether MSG1, POS and Select mode 2 carry coordinate v: |v| <= COORD_LIMIT (bus/codec.py). */
+static uint8_t carried(int16_t v)
+{
+    return v >= -COORD_LIMIT && v <= COORD_LIMIT;
+}
+
+/* MSG1 after '*' (body[1..7]): sign, tens (|v| div 10), units of X and of Y, then the side. */
 static uint8_t msg1_valid(const uint8_t *body)
 {
-    return body[1] <= 1 && body[2] <= 9 && body[3] <= 9 && body[4] <= 1 && body[5] <= 9
-        && body[6] <= 9 && body[7] >= 1 && body[7] <= 6;
+    return body[1] <= 1 && body[3] <= 9 && body[4] <= 1 && body[6] <= 9 && body[7] >= 1
+        && body[7] <= 6 && 10 * body[2] + body[3] <= COORD_LIMIT && 10 * body[5] + body[6] <= COORD_LIMIT;
 }
 
 static int16_t msg1_coord(const uint8_t *p)
@@ -553,21 +559,38 @@ static int16_t msg1_coord(const uint8_t *p)
     return p[0] ? (int16_t)-v : v;
 }
 
-/* sign, tens, units: a coordinate in MSG1 */
+/* sign, tens, units: a coordinate in MSG1 (the caller checked carried(v)) */
 static void line_coord(int16_t v)
 {
     int16_t a = v < 0 ? -v : v;
-    line_add(v < 0), line_add((uint8_t)(a / 10 % 10)), line_add((uint8_t)(a % 10));
+    line_add(v < 0), line_add((uint8_t)(a / 10)), line_add((uint8_t)(a % 10));
+}
+
+/* The neighbour's cell across body side `side`: global side, X and Y. */
+static uint8_t across(uint8_t side, int16_t *x, int16_t *y)
+{
+    uint8_t g = fold(side + Yref);
+    *x = X + fw_sbyte(&NB_DX[g]), *y = Y + fw_sbyte(&NB_DY[g]);
+    return g;
 }
 
 /* '*' MSG1 across body side `side`: the neighbour's cell there, and the side it faces us by */
 static void line_msg1(uint8_t side)
 {
-    uint8_t g = fold(side + Yref);
+    int16_t x, y;
+    uint8_t g = across(side, &x, &y);
     line_add(BYTE_START);
-    line_coord(X + fw_sbyte(&NB_DX[g]));
-    line_coord(Y + fw_sbyte(&NB_DY[g]));
+    line_coord(x);
+    line_coord(y);
     line_add(fold(g + 3));
+}
+
+/* A neighbour on body side `side` whose cell MSG1 carries (one beyond stays unlocalized). */
+static uint8_t tellable(uint8_t side)
+{
+    int16_t x, y;
+    across(side, &x, &y);
+    return neighbour(side) && carried(x) && carried(y);
 }
 
 static uint8_t co_localize(void)
@@ -579,7 +602,7 @@ static uint8_t co_localize(void)
         for (localize.w = 0; localize.w < 6; localize.w++) {
             for (localize.side = 1; localize.side <= 6; localize.side++) {
                 WAIT_TICK(pt, slot_start(localize.w, localize.side));
-                if (!neighbour(localize.side))
+                if (!tellable(localize.side))
                     continue;
                 IrSel(localize.side);
                 DELAY(pt, LOCALIZE_MUX_SETTLE_TICKS);
@@ -703,6 +726,10 @@ static void moved(uint8_t mi, uint8_t cw)
     uint8_t j = fold(mi + Yref);
     X += fw_sbyte(cw ? &CW_DX[j] : &CCW_DX[j]);
     Y += fw_sbyte(cw ? &CW_DY[j] : &CCW_DY[j]);
+    if (!carried(X) || !carried(Y)) { /* beyond what POS reports: not localized, not wrapped */
+        X = Y = 0, Yref = 0, L = 0;
+        return;
+    }
     Yref = (uint8_t)((Yref + (cw ? ORIENTATION_STEP_CW : 6 - ORIENTATION_STEP_CW)) % 6);
 }
 
