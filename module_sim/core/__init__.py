@@ -357,6 +357,8 @@ class FleetCore:
         nxt = clock.next_due_ns()
         if nxt is not None and nxt < limit:
             limit = nxt
+        if clock.inbox_waiting():  # samples of this instant (light for the core?) come in first
+            limit = now + 1
         if clock.until_ns is not None and clock.until_ns + 1 < limit:
             limit = clock.until_ns + 1
         reached = self.lib.core_run(self._h, max(limit, now + 1))

@@ -72,7 +72,10 @@ def test_boot_banner_bytes_match_spec():
     assert raw == b"\n\r\n\rM: COMM. BOARD READY\n\r"
 
 
-@given(x=st.integers(-99, 99), y=st.integers(-99, 99), s=st.integers(1, 6), role=roles)
+LIMIT = codec.COORD_LIMIT["v2"]
+
+
+@given(x=st.integers(-LIMIT, LIMIT), y=st.integers(-LIMIT, LIMIT), s=st.integers(1, 6), role=roles)
 def test_msg1_round_trip(x, y, s, role):
     raw = codec.encode_msg1(x, y, s, role=role)
     f = parse(Link.SIDE, raw)
@@ -84,9 +87,23 @@ def test_msg1_firmware_bytes():
     # Appendix A: LOCMSG1(0,0,0,0,0,1,5) announces (0,1) heard on side 5
     assert codec.encode_msg1(0, 1, 5, preamble=False) == b"*" + bytes([0, 0, 0, 0, 0, 1, 5])
     assert codec.encode_msg1(-12, 3, 6, preamble=False) == b"*" + bytes([1, 1, 2, 0, 0, 3, 6])
+    # v2: the tens byte is |v| div 10, so 100..127 keep their hundreds (10, 12)
+    assert codec.encode_msg1(100, -127, 4, preamble=False) == b"*" + bytes([0, 10, 0, 1, 12, 7, 4])
 
 
-@given(i=st.integers(1, 255), x=st.integers(-99, 99), y=st.integers(-99, 99), r=st.integers(0, 5),
+@pytest.mark.parametrize("v", [LIMIT + 1, -LIMIT - 1, 1000])
+def test_coordinates_beyond_the_limit_are_refused_not_wrapped(v):
+    """MSG1 and POS raise rather than drop a digit or wrap x + 128 (the programs check first)."""
+    with pytest.raises(ValueError, match=r"-127\.\.127"):
+        codec.encode_msg1(v, 0, 1)
+    with pytest.raises(ValueError, match=r"-127\.\.127"):
+        codec.encode_position(1, 0, v, 0, localized=True, mobile=True, substrate=False)
+    tens, units = divmod(abs(v), 10)
+    if tens < 256:  # a MSG1 whose bytes say more than the limit is not a cell
+        assert not codec.msg1_view(b"*" + bytes([0, tens, units, 0, 0, 0, 1]))["valid"]
+
+
+@given(i=st.integers(1, 255), x=st.integers(-LIMIT, LIMIT), y=st.integers(-LIMIT, LIMIT), r=st.integers(0, 5),
        loc=st.booleans(), m=st.booleans(), s=st.booleans())
 def test_position_round_trip(i, x, y, r, loc, m, s):
     raw = codec.encode_position(i, x, y, r, localized=loc, mobile=m, substrate=s)

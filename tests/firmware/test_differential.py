@@ -59,3 +59,31 @@ def test_a_firmware_that_answers_late_is_caught():
     shifted = [Event(e.t_ns + 2 * TICK_NS, e.what, e.detail) if e.t_ns > 11 * NS_PER_S else e
                for e in firmware]
     assert compare(model, shifted)
+
+
+def _acks(events) -> list[int]:
+    centre = bytes(int(e.detail, 16) for e in events if e.what == "ir")
+    return [part[0] for part in centre.split(b"ACK")[1:]]
+
+
+def _port(events, board: str, letter: str) -> int:
+    """The last value a board's PORTx was written with in a log."""
+    return [int(e.detail.split()[2], 16) for e in events if e.what == "port"
+            and e.detail.startswith(f"{board} {letter} ")][-1]
+
+
+def test_a_relay_during_selftest_is_lost_cleanly_in_both_programs():
+    """Issue 50 item 2, its sequence: SelfTest, JxOpen 2 1.5 s later, then SxP 3. The
+    relay that reaches the busy control board is answered '~'; SxP 3 runs (it was answered
+    35, the leftover '#' of SelfTest's relay frame, and S3 stayed off)."""
+    from bus.pins import MAGNET_POS
+    from hexbench.firmware import compare, differential
+
+    s = NS_PER_S
+    script = [(11 * s, encode_command("SelfTest")), (int(12.5 * s), encode_command("JxOpen", 2)),
+              (17 * s, encode_command("SxP", 3))]
+    model, firmware = differential("v2", script, 19.0)
+    assert compare(model, firmware) == []
+    assert _acks(firmware) == [64, ord("~"), 11]
+    s3 = MAGNET_POS[3]
+    assert _port(firmware, "control", s3.port) & s3.mask

@@ -11,7 +11,6 @@ without avrdude and a programmer that does not answer each end in one line and e
 from __future__ import annotations
 
 import shlex
-import shutil
 import signal
 import subprocess
 import time
@@ -28,11 +27,10 @@ from hil.isp import (EEPROM_SIZE, FLASH_SIZE, MEMORY_SIZES, OK, PROG_PAGE, READ_
                      Atmega162, EmptySocket, Stk500Programmer, format_ihex, parse_ihex, read_ihex)
 from hil.pty import Pty
 from processes import hexbench
-from toolchain import needs_avr
+from toolchain import needs_avr, needs_tools
 
-#: ``pytestmark``-style marker for tests that run the real avrdude.
-needs_avrdude = pytest.mark.skipif(shutil.which("avrdude") is None,
-                                   reason="needs avrdude (.ci/system installs it)")
+#: For tests that run the real avrdude.
+needs_avrdude = needs_tools("avrdude")
 
 #: A silent programmer costs avrdude one read timeout (5 s) before hexbench stops it.
 SILENT_BOUND_S = 15.0

@@ -16,8 +16,9 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from processes import free_port, hexbench, wall_fleet
 from recordings.foxglove import module_cells
+from toolchain import module
 
-websockets = pytest.importorskip("websockets")
+websockets = module("websockets")
 
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
 

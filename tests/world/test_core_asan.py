@@ -12,6 +12,8 @@ from pathlib import Path
 
 import pytest
 
+from toolchain import missing
+
 ROOT = Path(__file__).resolve().parents[2]
 CORE = ROOT / "module_sim" / "core"
 FUZZ = ROOT / "tests" / "support" / "core_fuzz.py"
@@ -22,10 +24,10 @@ def asan_core() -> tuple[Path, dict[str, str]]:
     """The ASan build of libhexcore, and the environment that loads libasan first."""
     cc = os.environ.get("CC", "cc")
     if shutil.which(cc) is None:
-        pytest.skip(f"no C compiler ({cc})")
+        missing(f"a C compiler ({cc})")
     libasan = subprocess.run([cc, "-print-file-name=libasan.so"], capture_output=True, text=True).stdout.strip()
     if not os.path.isabs(libasan) or not Path(libasan).exists():
-        pytest.skip(f"{cc} has no libasan (apt-get install libasan8)")
+        missing(f"libasan for {cc}", "apt-get install libasan8")
     subprocess.run(["make", "-s", "-C", str(CORE), "build/libhexcore-asan.so"], check=True)
     env = dict(os.environ, LD_PRELOAD=libasan, ASAN_OPTIONS="detect_leaks=0:abort_on_error=0")
     return CORE / "build" / "libhexcore-asan.so", env

@@ -156,3 +156,82 @@ def test_a_burst_longer_than_a_boards_is_carried_whole_as_on_the_python_path():
     assert len(core) == 2  # the second burst meets the first at each module
     assert all(len(bytes.fromhex(e["received"])) == n for e in core)
     assert core == python
+
+
+
+
+def _long_window_after(t0: int) -> int:
+    """When the core's first window after ``t0`` that runs 50 ms or more starts (during the
+    boot of the two-module fleet): a window that would carry a burst of its instant late."""
+    clock = VirtualClock()
+    session = open_session(SessionOptions(isolated=True))
+    bus = Bus(clock, "corewindows", session=session)
+    try:
+        fleet = Fleet(bus, block_scenarios(2, "firmware")[0])
+        core = fleet.core
+        windows: list[tuple[int, int]] = []
+        run_window = core._window
+
+        def window() -> None:
+            start = clock.now_ns()
+            run_window()
+            windows.append((start, clock.now_ns()))
+
+        core._window = window  # what _kick books from now on
+        fleet.power_up()
+        clock.run(until=lambda: bool(windows) and windows[-1][0] > t0 and windows[-1][1] - windows[-1][0] >= 50 * NS_PER_MS,
+                  timeout_s=60)
+        return windows[-1][0]
+    finally:
+        bus.close()
+        session.close()
+
+
+def _light_at(t: int, core: bool, forced: bool):
+    """Two outside transmitters' bursts, put by one timer at ``t`` while the fleet boots,
+    where the core's window is booked. Natural order: the window's timer (booked first)
+    fires first and runs only instant ``t``, the next timer being due then. ``forced``: the
+    window's timer fires after the bursts' timer, so the window runs while the clock's inbox
+    still holds the bursts of its instant."""
+    clock = VirtualClock()
+    session = open_session(SessionOptions(isolated=True))
+    bus = Bus(clock, f"coreorder{int(core)}{int(forced)}", session=session)
+    frames: list[tuple] = []
+    events: list[bytes] = []
+    try:
+        fleet = Fleet(bus, block_scenarios(2, "firmware")[0], core=core)
+        fleet.power_up()
+        clock.run(until_ns=t - 1)
+        assert not core or fleet.core._timer_at == t
+
+        def light() -> None:
+            for src, shift in (("x1", 0), ("x2", BYTE_NS // 3)):
+                bus.put(bus.keys.ir_tx(src), json.dumps(_burst(src, t + shift, 4)).encode())
+
+        clock.call_at(t, light)
+        if forced:
+            fleet.core._timer.cancel()
+            fleet.core._timer = clock.call_at(t, fleet.core._window)
+        bus.subscribe_frames(lambda e: frames.append((e.sim_time_ns, e.src, e.link, e.first_byte_ns, e.raw)))
+        bus.subscribe(bus.keys.event("world"), lambda k, p: events.append(p))
+        clock.run(until_ns=t + NS_PER_S)
+        return sorted(frames), sorted(events)
+    finally:
+        bus.close()
+        session.close()
+
+
+def test_a_burst_waiting_in_the_inbox_enters_the_core_at_its_own_instant():
+    """The core's window used to run up to 100 ms ahead while bursts of its instant still
+    waited in the clock's inbox: they entered late (the collision they make was stamped
+    ~100 ms after it, and the modules heard them late). Forced or not, the frames and the
+    world's events are the Python path's."""
+    t = _long_window_after(3 * NS_PER_S)
+    python, python_events = _light_at(t, False, False)
+    collisions = [json.loads(e) for e in python_events if b'"collision"' in e]
+    assert len(collisions) == 2 and all(c["sim_time_ns"] == t for c in collisions)
+    natural, natural_events = _light_at(t, True, False)
+    assert natural_events == python_events and natural == python
+    forced, forced_events = _light_at(t, True, True)
+    assert forced_events == python_events
+    assert forced == python
