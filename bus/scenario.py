@@ -439,7 +439,7 @@ def _reach(d: dict[str, Any], modules: list[ModuleSpec], goal: list[Cell], fixed
                              ("the goal", goal_key, goal)):
         for i, cell in enumerate(cells):
             if why := reach.beyond(cell):
-                where = (key, i, "cell") if key == "modules" else (key, i) if key in ("initial", "goal") else (key,)
+                where: Key = {"modules": (key, i, "cell"), "initial": (key, i), "goal": (key, i)}.get(key, (key,))
                 raise at.error(f"{what} leaves what the protocol can name: {why}", where)
 
 

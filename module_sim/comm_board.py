@@ -516,24 +516,29 @@ class CommBoard(Mcu):
         if mode == 0:
             self.selected, self.addressed = True, False
         elif mode == 1:
-            self.selected = self.addressed = a == self.id
+            self.selected = self.addressed = self._named(a)
         elif mode == 2:
             self.selected = self.addressed = bool(self.L) and (self.X, self.Y) == (
                 a - codec.COORD_OFFSET, b - codec.COORD_OFFSET)
         elif mode == 3:
-            if a == self.id:
+            if self._named(a):
                 self.selected = self.addressed = True
         else:
             self.selected = self.addressed = False
 
+    def _named(self, ident: int) -> bool:
+        """Whether ``ident`` names this module: id 0 ("no id": no DIP switch on, or no id byte
+        at boot) is never an address, or every module without one would answer at once."""
+        return ident != 0 and ident == self.id
+
     def _move(self, direction, mid, mi, sid, si, t1, t2, t3) -> Program:
         cw = direction == 1
-        if self.id == mid:
+        if self._named(mid):
             ack = yield from self._rotate(F.MCW if cw else F.MCCW, 0, True, mi, t1, t2, t3)
             if self.L and ack in (F.MCW, F.MCCW):
                 self._moved(mi, cw)
             return ack
-        if self.id == sid:
+        if self._named(sid):
             self._substrate_turn = True
             return (yield from self._rotate(0, F.SCW if cw else F.SCCW, False, si, t1, t2, t3))
         return None

@@ -251,6 +251,9 @@ class ControlBoard(Mcu):
             yield Tx(u0, bytes([dip_id(self.pin_in[DIP_PORT])]))
         yield Tx(u1, codec.BANNERS["CTR_LST"] + codec.EOL)
         self._reporting = self.profile.actuator_report
+        # the coils as the boot left them (all off) count as reported: a step that ends where
+        # it began (a zero-tick pulse, JTest 1 0) changes no bit and sends no report, as in C
+        self._reported = codec.encode_actuator_report(*self.actuator_bits())
         while True:
             yield from self.listen()
 
