@@ -88,6 +88,7 @@ TIMER0_TOP = 155
 PROGRAM_TIMING = (
     "BOOT_SETTLE_TICKS", "ECHO_TIMEOUT_TICKS", "SUBSTRATE_ACK_DELAY_TICKS", "HANDSHAKE_RETRY_TICKS",
     "LOCALIZE_LISTEN_TICKS", "MAGNET_ON_LIMIT_TICKS", "SOLENOID_ON_LIMIT_TICKS", "SELFTEST_PULSE_TICKS",
+    "FRAME_BYTE_TICKS",
     "BOOT_FLASH_ROUNDS", "BOOT_FLASH_TICKS", "BOOT_CIRCLE_ROUNDS", "BOOT_CIRCLE_TICKS",
     "BOOT_JTEST_ROUNDS", "BOOT_JTEST_TICKS", "YREF_FLASH_TICKS", "YREF_SHOWS",
     "THESIS_LOCALIZE_ROUNDS", "THESIS_LOCALIZE_REPEATS", "THESIS_LOCALIZE_SEND_TICKS",
@@ -220,6 +221,8 @@ def header() -> str:
             f"#define BYTE_LISTENING 0x{codec.HANDSHAKE_LISTENING[0]:02x}",
             f"#define PROBE_BYTES {{0x{codec.PROBE_BYTES[0]:02x}, 0x{codec.PROBE_BYTES[1]:02x}}}",
             f"#define COORD_OFFSET {codec.COORD_OFFSET}",
+            "/* v2: |X|, |Y| a module can be told, keep and report (the thesis sends none) */",
+            f"#define COORD_LIMIT {codec.COORD_LIMIT['v2']}",
             f"#define PC_FRAME_LEN {codec.PC_FRAME_LEN}", f"#define RELAY_FRAME_LEN {codec.RELAY_FRAME_LEN}",
             f"#define MSG1_LEN {codec.MSG1_LEN}",
             "/* what an image on the wrong board, or a board of unknown kind, prints (bus/chip.py) */"]

@@ -58,7 +58,13 @@ GUARD_TEXTS: dict[tuple[str, str], bytes] = {
     ("comm", "none"): b"UNKNOWN BOARD: COMM IMAGE, NO BOARD RECORD IN EEPROM",
     ("control", "none"): b"UNKNOWN BOARD: CONTROL IMAGE, NO BOARD RECORD IN EEPROM",
 }
+#: POS and Select mode 2 carry a coordinate as x + 128 in one byte.
 COORD_OFFSET = 128
+#: The coordinates the protocol carries, relative to the reference (the fixed module after
+#: ``Ref``), per profile: the thesis's MSG1 has two decimal digits (-99..99); v2's MSG1 carries
+#: |x| div 10 in the tens byte (0..12) so that it reaches what POS's x + 128 byte carries
+#: (-127..127, symmetric). Scenarios, plans and both programs are held to it.
+COORD_LIMIT = {"v2": 127, "thesis-2009": 99}
 
 
 class Link(str, Enum):
@@ -345,18 +351,21 @@ def explain(link: Link, raw: bytes | bytearray) -> str:
 
 # --- build -----------------------------------------------------------------------------
 def _arg_bytes(fn: Function, args: Iterable[int] | dict[str, int], width: int, filler: int) -> bytes:
+    # Only an argument left out (a keyword not given) is the filler unchecked: a given value
+    # equal to the filler (0 in a PC frame, 'N' in a relay) is checked like any other.
     if isinstance(args, dict):
         unknown = set(args) - set(fn.arg_names)
         if unknown:
             raise ValueError(f"{fn.name} has no argument {sorted(unknown)}; it takes {fn.arg_names}")
         vals = [args.get(a.name, filler) for a in fn.args]
+        given = [(a, args[a.name]) for a in fn.args if a.name in args]
     else:
         vals = list(args)
+        given = list(zip(fn.args, vals))
     if len(vals) > width:
         raise ValueError(f"{fn.name}: {len(vals)} arguments do not fit {width} bytes")
-    for a, v in zip(fn.args, vals):
-        if v != filler:
-            a.check(v)
+    for a, v in given:
+        a.check(v)
     for v in vals:
         if not 0 <= v <= 255:
             raise ValueError(f"argument {v} is not a byte")
@@ -370,9 +379,10 @@ def encode_command(fn: str | int | Function, *args: int, **kwargs: int) -> bytes
     return START + bytes([f.code]) + body + END
 
 
-def encode_relay(code: int, *args: int) -> bytes:
+def encode_relay(code: int | Function, *args: int) -> bytes:
     """Comm -> control frame over UART0: ``'*' code a b c d '#'``, unused = 'N'."""
-    return START + bytes([code]) + _arg_bytes(FUNCTIONS[code], args, 4, ARG_UNUSED) + END
+    f = code if isinstance(code, Function) else FUNCTIONS[code]
+    return START + bytes([f.code]) + _arg_bytes(f, args, 4, ARG_UNUSED) + END
 
 
 def role_prefix(mobile: bool, substrate: bool) -> bytes:
@@ -448,13 +458,25 @@ def encode_yref_report(yref: int) -> bytes:
 
 def msg1_digits(x: int, y: int, side: int) -> bytes:
     """MSG1 after '*': sign, tens, units of X; sign, tens, units of Y; side S.
-    Sign bytes are 0 for non-negative and 1 for negative; digits are raw 0..9."""
+    Sign bytes are 0 for non-negative and 1 for negative; the tens byte is |v| div 10 (v2:
+    0..12), the units 0..9. A coordinate beyond ``COORD_LIMIT["v2"]`` is a ValueError: a
+    program checks its cell before it sends (:func:`msg1_carries`)."""
     for v in (x, y):
-        if not -99 <= v <= 99:
-            raise ValueError(f"MSG1 carries coordinates in -99..99, not {v}")
+        if not msg1_carries(v):
+            raise ValueError(f"MSG1 carries coordinates in {coord_range('v2')}, not {v}")
     if not 1 <= side <= 6:
         raise ValueError(f"MSG1 side must be 1..6, not {side}")
     return bytes([int(x < 0), abs(x) // 10, abs(x) % 10, int(y < 0), abs(y) // 10, abs(y) % 10, side])
+
+
+def msg1_carries(v: int) -> bool:
+    """Whether a v2 MSG1 (and POS, Select mode 2) can carry coordinate ``v``."""
+    return abs(v) <= COORD_LIMIT["v2"]
+
+
+def coord_range(profile: str) -> str:
+    """``"-127..127"``: the coordinates ``profile`` carries, as a message says it."""
+    return f"-{COORD_LIMIT[profile]}..{COORD_LIMIT[profile]}"
 
 
 def encode_msg1(x: int, y: int, side: int, *, role: bytes = b"", preamble: bool = True) -> bytes:
@@ -464,16 +486,19 @@ def encode_msg1(x: int, y: int, side: int, *, role: bytes = b"", preamble: bool 
 def msg1_view(body: bytes) -> dict[str, Any]:
     """Decode the 8 bytes ``'*' sx x1 x0 sy y1 y0 S``."""
     sx, x1, x0, sy, y1, y0, s = body[1:8]
-    sane = all(d <= 9 for d in (x1, x0, y1, y0)) and sx in (0, 1) and sy in (0, 1) and 1 <= s <= 6
     x = (10 * x1 + x0) * (-1 if sx else 1)
     y = (10 * y1 + y0) * (-1 if sy else 1)
+    sane = (x0 <= 9 and y0 <= 9 and sx in (0, 1) and sy in (0, 1) and 1 <= s <= 6
+            and msg1_carries(x) and msg1_carries(y))
     return {"x": x, "y": y, "side": s, "valid": sane}
 
 
 def encode_position(ident: int, x: int, y: int, yref: int, *, localized: bool, mobile: bool,
                     substrate: bool, role: bytes = b"") -> bytes:
     """v2 location report: preamble, role, ``"POS"`` id x+128 y+128 yref flags, EOL."""
+    if not (msg1_carries(x) and msg1_carries(y)):
+        raise ValueError(f"POS carries coordinates in {coord_range('v2')}, not ({x}, {y})")
     flags = int(localized) | int(mobile) << 1 | int(substrate) << 2
     return (PREAMBLE + role + POS_TAG
-            + bytes([ident & 0xFF, (x + COORD_OFFSET) & 0xFF, (y + COORD_OFFSET) & 0xFF, yref % 6, flags])
+            + bytes([ident & 0xFF, x + COORD_OFFSET, y + COORD_OFFSET, yref % 6, flags])
             + EOL)

@@ -47,6 +47,37 @@ class Burst:
 
 _dumps = json.JSONEncoder(separators=(",", ":")).encode
 
+#: a start time or byte time a burst may carry: the fleet core keeps times in 64 bits, byte
+#: times in 32 (ns; a byte at 2400 baud is 4 166 667)
+MAX_START_NS = 2**63 - 1
+MAX_BYTE_NS = 2**32 - 1
+
+
+def burst_light(d: dict[str, Any]) -> tuple[bytes, list[int], int, list[bool]]:
+    """The bytes, their start times, the byte time and the corrupt flags (``[]``: none) of
+    the burst sample ``d`` (an ``ir/tx`` sample's dict), checked against each other: a
+    sample from elsewhere may be anything, and the medium indexes ``starts`` and
+    ``corrupt`` by byte. ValueError says what is wrong (a ``bad-sample`` event)."""
+    data = d["data"]
+    if not isinstance(data, str):
+        raise ValueError(f"burst data is {type(data).__name__}, not a hex string")
+    try:
+        data = bytes.fromhex(data)
+    except ValueError as exc:
+        raise ValueError(f"burst data is not hex: {exc}") from None
+    starts, byte_ns, corrupt = d["starts"], d["byte_ns"], d.get("corrupt") or []
+    if not isinstance(starts, list) or len(starts) != len(data):
+        raise ValueError(f"burst of {len(data)} bytes has "
+                         f"{len(starts) if isinstance(starts, list) else type(starts).__name__} start times")
+    if not all(type(s) is int and 0 <= s <= MAX_START_NS for s in starts):
+        raise ValueError(f"burst start times must be integers in 0..{MAX_START_NS} ns")
+    if type(byte_ns) is not int or not 0 < byte_ns <= MAX_BYTE_NS:
+        raise ValueError(f"burst byte_ns {byte_ns!r} is not an integer in 1..{MAX_BYTE_NS}")
+    if not isinstance(corrupt, list) or (corrupt and len(corrupt) != len(data)) \
+            or not all(type(c) is bool for c in corrupt):
+        raise ValueError(f"burst of {len(data)} bytes: corrupt must be [] or {len(data)} booleans")
+    return data, starts, byte_ns, corrupt
+
 
 def one_byte_burst(src_json: str, burst: int, value: int, start: int, byte_ns: int, tail: str,
                    corrupt: bool) -> bytes:

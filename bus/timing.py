@@ -49,6 +49,13 @@ SOLENOID_ON_LIMIT_TICKS = 6010
 #: SelfTest (ours): each actuator on this long, then off as long, one after another.
 SELFTEST_PULSE_TICKS = 10
 
+#: v2: once a board has read a frame's '*' (the PC's frame on IR, a relay frame on UART0) it
+#: waits this long for each further byte; a longer silence ends the frame unread. A frame goes
+#: out in one burst (at 300 baud a byte every 3.3 ticks, on UART0 one every 0.2), so a silence
+#: inside one means its rest was lost (the board was busy and its input overran) or its '*'
+#: was noise: the next frame after a silence is read in step whatever its arguments hold.
+FRAME_BYTE_TICKS = 10
+
 # -- the programs' own shows and waits (Appendix A's DelayXts and loop counts) -------------
 # Both programs take these from here: the Python model by name, the C firmware through
 # hexbot_gen.h (bus.cheader). A call with a bare number fails tests/firmware/test_header.py.

@@ -33,6 +33,7 @@ if TYPE_CHECKING:
     from bus import Bus, Scenario
     from bus.lockstep import Lockstep
     from module_sim.fleet import Fleet
+    from planner_svc.planners.plan import Plan
     from planner_svc.service import PlannerService
 
 
@@ -201,6 +202,7 @@ class RunOptions:
     compare: bool
     shards: int | None
     bus_args: argparse.Namespace  # the options the bus and the shards open with
+    plan: Plan | None = None  # made from the scenario before the fleet boots (_early_plan)
 
 
 @dataclass
@@ -286,7 +288,29 @@ def _options(args: argparse.Namespace, with_fleet: bool) -> RunOptions:
     if compare and record is None:
         import tempfile
         record = Path(tempfile.mkdtemp(prefix="hexbench-compare")) / "firmware.mcap"
-    return RunOptions(scenario, args.planner, timing, with_fleet, record, compare, shards, bus_args)
+    return RunOptions(scenario, args.planner, timing, with_fleet, record, compare, shards, bus_args,
+                      _early_plan(scenario, args.planner))
+
+
+def _early_plan(scenario: Scenario, planner: str) -> Plan | None:
+    """The plan of the scenario, made before anything is opened, so that a plan that leaves
+    what the protocol can name (bus.scenario.Reach) is refused in one line before the fleet
+    boots; the service executes it when the fleet localizes as the scenario says. None for a
+    script, and for thesis-2009 modules (no planner drives them)."""
+    from planner_svc import planners
+    from planner_svc.planners.plan import PlanError, check_reach
+
+    if planner.startswith(planners.SCRIPT_PREFIX) or scenario.profile == "thesis-2009":
+        return None
+    try:
+        plan = planners.get(planner).plan(scenario)
+    except PlanError:
+        return None  # the service reports it with the rest of the run
+    try:
+        check_reach(plan, scenario.reach)
+    except PlanError as exc:
+        raise UsageError(f"planner {planner}: {exc}") from None
+    return plan
 
 
 def _open_bus(opts: RunOptions, stack: contextlib.ExitStack) -> Bus:
@@ -325,7 +349,8 @@ def _set_up(opts: RunOptions, args: argparse.Namespace, bus: Bus, stack: context
                  f"{scenario.profile}, seed {scenario.seed}), planner {opts.planner}, clock {args.clock}"
                  + (f", faults {', '.join(map(str, scenario.faults))}" if scenario.faults else ""))
     progress.phase("boot")
-    service = PlannerService(bus, scenario, opts.planner, timing=opts.timing, say=phase_sayer(progress))
+    service = PlannerService(bus, scenario, opts.planner, timing=opts.timing, say=phase_sayer(progress),
+                             plan=opts.plan)
     parts = RunParts(bus, service, since, lag)
     if opts.shards is not None:
         from module_sim.fleet import Fleet

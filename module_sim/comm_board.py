@@ -25,6 +25,7 @@ from bus.timing import (BOOT_CIRCLE_ROUNDS, BOOT_CIRCLE_TICKS, BOOT_FLASH_ROUNDS
                         localize_step_ticks, localize_window_ticks)
 
 from .avr import TIMEOUT, Delay, Mcu, Program, Rx, Tx, Uart
+from .framing import read_frame
 from .profiles import Profile
 
 _STAR, _R, _L = ord("*"), ord("R"), ord("L")
@@ -327,6 +328,8 @@ class CommBoard(Mcu):
                         continue
                     g = body_to_global(s, self.Yref)
                     there = Cell(self.X, self.Y).neighbour(g)
+                    if not (codec.msg1_carries(there.x) and codec.msg1_carries(there.y)):
+                        continue  # a cell MSG1 cannot carry: that neighbour stays unlocalized
                     self.IrSel(s)
                     yield Delay(LOCALIZE_MUX_SETTLE_TICKS)  # the listener is there
                     yield from self._pre()
@@ -394,24 +397,16 @@ class CommBoard(Mcu):
 
     def listen(self) -> Program:
         u1 = self.uart1
-        while (yield Rx(u1)) != _STAR:
-            pass
-        msg = []
-        for _ in range(9):
-            msg.append((yield Rx(u1)))
-        if self.profile.addressing:
-            # v2 reads the '#' too; a frame that does not end in '#' was garbage with a '*'
-            # in it: resynchronise on the next '*' inside what was read.
-            end = yield Rx(u1)
-            while end != ord("#"):
-                tail = msg + [end]
-                if _STAR not in tail:
-                    return
-                k = tail.index(_STAR)
-                msg = tail[k + 1:]
-                while len(msg) < 9:
-                    msg.append((yield Rx(u1)))
-                end = yield Rx(u1)
+        if self.profile.checked_frames:
+            msg = yield from read_frame(u1, codec.PC_FRAME_LEN)  # v2 reads the '#' too and resynchronises
+            if msg is None:
+                return
+        else:
+            while (yield Rx(u1)) != _STAR:
+                pass
+            msg = []
+            for _ in range(9):
+                msg.append((yield Rx(u1)))
         code, args = msg[0], msg[1:]
         self._substrate_turn = False
         ack = yield from self.dispatch(code, args)
@@ -435,7 +430,7 @@ class CommBoard(Mcu):
             fn = FUNCTIONS[0]  # a thesis module does not know our codes
         if fn.board is Board.CONTROL:
             ack = yield from self.relay(code, args)
-            for mirror in fn.led_mirror:
+            for mirror in fn.led_mirror if self._confirmed(code, ack) else ():
                 result = getattr(self, mirror)(*args[:len(FUNCTIONS[code].args)])
                 if result is not None:
                     yield from result
@@ -458,14 +453,32 @@ class CommBoard(Mcu):
         rargs = [0] if code in _ZERO_ARG else args[:len(fn.args)]
         if code == F.SelfTest:
             rargs = [self.switch_bits()]  # the control board reports them with its DIP id
+        if not self.profile.checked_frames:
+            yield Tx(self.uart0, codec.encode_relay(code, *rargs))
+            return (yield Rx(self.uart0, ECHO_TIMEOUT_TICKS))  # any byte is the echo
+        # v2: only the code itself is its echo. One that came after its wait is stale: it
+        # would confirm the next relay of the same code, and every one after it, one late.
+        self.uart0.flush_rx()
         yield Tx(self.uart0, codec.encode_relay(code, *rargs))
-        return (yield Rx(self.uart0, ECHO_TIMEOUT_TICKS))
+        due = self.tick_count() + ECHO_TIMEOUT_TICKS
+        while True:
+            echo = yield Rx(self.uart0, max(0, due - self.tick_count()), tell_timeout=True)
+            if echo is None:
+                return TIMEOUT
+            if echo == code:
+                return echo
+
+    def _confirmed(self, code: int, ack: int) -> bool:
+        """Whether the LEDs mirror a relayed code: v2 only when the control board echoed it
+        (they would show a coil that is off); the thesis board always."""
+        return ack == code or not self.profile.checked_frames
 
     def _rotate(self, mobile_code: int, substrate_code: int, role_mobile: bool,
                 i: int, t1: int, t2: int, t3: int) -> Program:
         code = mobile_code if role_mobile else substrate_code
         ack = yield from self.relay(code, [i, t1, t2, t3])
-        yield from getattr(self, FUNCTIONS[code].led_mirror[0])(i, t1, t2, t3)
+        if self._confirmed(code, ack):
+            yield from getattr(self, FUNCTIONS[code].led_mirror[0])(i, t1, t2, t3)
         return ack
 
     def CW(self, si, st1, st2, st3, mi, mt1, mt2, mt3) -> Program:
@@ -490,24 +503,29 @@ class CommBoard(Mcu):
         if mode == 0:
             self.selected, self.addressed = True, False
         elif mode == 1:
-            self.selected = self.addressed = a == self.id
+            self.selected = self.addressed = self._named(a)
         elif mode == 2:
             self.selected = self.addressed = bool(self.L) and (self.X, self.Y) == (
                 a - codec.COORD_OFFSET, b - codec.COORD_OFFSET)
         elif mode == 3:
-            if a == self.id:
+            if self._named(a):
                 self.selected = self.addressed = True
         else:
             self.selected = self.addressed = False
 
+    def _named(self, ident: int) -> bool:
+        """Whether ``ident`` names this module: id 0 ("no id": no DIP switch on, or no id byte
+        at boot) is never an address, or every module without one would answer at once."""
+        return ident != 0 and ident == self.id
+
     def _move(self, direction, mid, mi, sid, si, t1, t2, t3) -> Program:
         cw = direction == 1
-        if self.id == mid:
+        if self._named(mid):
             ack = yield from self._rotate(F.MCW if cw else F.MCCW, 0, True, mi, t1, t2, t3)
             if self.L and ack in (F.MCW, F.MCCW):
                 self._moved(mi, cw)
             return ack
-        if self.id == sid:
+        if self._named(sid):
             self._substrate_turn = True
             return (yield from self._rotate(0, F.SCW if cw else F.SCCW, False, si, t1, t2, t3))
         return None
@@ -518,6 +536,11 @@ class CommBoard(Mcu):
         confirms the move. It cannot know whether the move happened: the PC compares."""
         rule = move_rule(Joint.of(mi + self.Yref), Direction.CW if cw else Direction.CCW)
         goal = rule.cells(Cell(self.X, self.Y))[2]
+        if not (codec.msg1_carries(goal.x) and codec.msg1_carries(goal.y)):
+            # beyond what POS can report: the module no longer knows a cell it can say, so it
+            # is not localized (its boot state) rather than reporting a wrapped one
+            self.X = self.Y = self.Yref = self.L = 0
+            return
         self.X, self.Y = goal.x, goal.y
         self.Yref = orientation_after(self.Yref, rule.direction)
 

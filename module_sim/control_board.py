@@ -13,8 +13,8 @@ from bus.clock import Clock
 from bus.functions import FUNCTIONS, Board
 from bus.pins import (CONTROL_PULLUPS, CONTROL_UART_PINS, DIP_PORT, JOINT, MAGNET_NEG, MAGNET_POS, Pin,
                       dip_id, dip_levels, fold, port_masks)
-from bus.timing import (BOOT_JTEST_ROUNDS, BOOT_JTEST_TICKS, BOOT_SETTLE_TICKS, HANDSHAKE_RETRY_TICKS,
-                        MAGNET_ON_LIMIT_TICKS, SELFTEST_PULSE_TICKS, SOLENOID_ON_LIMIT_TICKS, TICK_NS,
+from bus.timing import (BOOT_JTEST_ROUNDS, BOOT_JTEST_TICKS, BOOT_SETTLE_TICKS, FRAME_BYTE_TICKS,
+                        HANDSHAKE_RETRY_TICKS, MAGNET_ON_LIMIT_TICKS, SELFTEST_PULSE_TICKS, SOLENOID_ON_LIMIT_TICKS, TICK_NS,
                         Baud)
 
 from .avr import Delay, Mcu, Program, Rx, Tx, Uart
@@ -239,20 +239,31 @@ class ControlBoard(Mcu):
             yield Tx(u0, bytes([dip_id(self.pin_in[DIP_PORT])]))
         yield Tx(u1, codec.BANNERS["CTR_LST"] + codec.EOL)
         self._reporting = self.profile.actuator_report
+        # the coils as the boot left them (all off) count as reported: a step that ends where
+        # it began (a zero-tick pulse, JTest 1 0) changes no bit and sends no report, as in C
+        self._reported = codec.encode_actuator_report(*self.actuator_bits())
         while True:
             yield from self.listen()
 
     def listen(self) -> Program:
         u0, u1 = self.uart0, self.uart1
+        checked = self.profile.checked_frames
         while (yield Rx(u0)) != _STAR:
             pass
         msg = []
         for _ in range(5):
-            msg.append((yield Rx(u0)))
+            # v2: each within FRAME_BYTE_TICKS: after a long command the remains of a frame
+            # that overran the input end in a silence and are dropped, not read as the next one
+            b = yield (Rx(u0, FRAME_BYTE_TICKS, tell_timeout=True) if checked else Rx(u0))
+            if b is None:
+                return
+            msg.append(b)
         yield Tx(u0, bytes([msg[0]]))  # confirm to the comm board: echo the code
         yield Tx(u1, codec.PREAMBLE)
         yield Tx(u1, b"ACK" + bytes([msg[0]]) + codec.EOL)
         yield Tx(u1, codec.encode_debug_msg(bytes(msg)))
+        if checked and (yield Rx(u0, FRAME_BYTE_TICKS, tell_timeout=True)) != codec.END[0]:
+            return  # v2: not a whole frame: echoed, but not run
         yield from self.execute(msg[0], msg[1:])
 
     def execute(self, code: int, args: list[int]) -> Program:

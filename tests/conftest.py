@@ -2,5 +2,8 @@
 
 from hypothesis import HealthCheck, settings
 
+# A missing tool skips a test, or fails it in CI (tests/support/toolchain.py).
+from toolchain import pytest_configure, pytest_runtest_setup  # noqa: F401  (pytest hooks)
+
 settings.register_profile("ci", deadline=None, suppress_health_check=[HealthCheck.too_slow])
 settings.load_profile("ci")

@@ -93,7 +93,10 @@ enum { PT_WAITING = 0, PT_DONE = 1 };
          (dst) = board_rx_ready(uart) ? board_rx_read(uart) : ACK_TIMEOUT; } while (0)
 /* The same, telling a timeout apart from a received byte (v2): `timed_out` is 1 or 0. */
 #define RX_TL2(pt, uart, ticks, dst, timed_out) \
-    do { (pt)->t0 = (uint16_t)(board_ticks() + (ticks)); \
+    RX_UNTIL(pt, uart, (uint16_t)(board_ticks() + (ticks)), dst, timed_out)
+/* The same with a deadline: the overflow that makes board_ticks() == target. */
+#define RX_UNTIL(pt, uart, target, dst, timed_out) \
+    do { (pt)->t0 = (target); \
          PT_WAIT_UNTIL(pt, board_rx_ready(uart) || board_tick_reached((pt)->t0)); \
          (timed_out) = !board_rx_ready(uart); \
          (dst) = (timed_out) ? ACK_TIMEOUT : board_rx_read(uart); } while (0)

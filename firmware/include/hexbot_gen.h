@@ -16,6 +16,7 @@
 #define MAGNET_ON_LIMIT_TICKS 801
 #define SOLENOID_ON_LIMIT_TICKS 6010
 #define SELFTEST_PULSE_TICKS 10
+#define FRAME_BYTE_TICKS 10
 #define BOOT_FLASH_ROUNDS 3
 #define BOOT_FLASH_TICKS 10
 #define BOOT_CIRCLE_ROUNDS 1
@@ -258,6 +259,8 @@
 #define BYTE_LISTENING 0x4c
 #define PROBE_BYTES {0xff, 0x00}
 #define COORD_OFFSET 128
+/* v2: |X|, |Y| a module can be told, keep and report (the thesis sends none) */
+#define COORD_LIMIT 127
 #define PC_FRAME_LEN 11
 #define RELAY_FRAME_LEN 7
 #define MSG1_LEN 8

@@ -338,8 +338,16 @@ static void mirror_act(uint8_t op, int16_t i)
 static rotation_t led_rotation; /* LMCW..LSCCW sent by the PC */
 
 /* --- relay to the control board ----------------------------------------------------- */
-/* MSG(): '*' code a b c d '#' on UART0 (unused arguments 'N'), then wait for the echo. */
-static struct { pt_t pt; uint8_t frame[RELAY_FRAME_LEN], result; } relay;
+/* MSG(): '*' code a b c d '#' on UART0 (unused arguments 'N'), then wait for the echo:
+ * any byte (thesis), the code itself (v2: else ACK_TIMEOUT when the wait is over). */
+static struct {
+    pt_t pt;
+    uint8_t frame[RELAY_FRAME_LEN], result;
+#if HEXBOT_V2
+    uint8_t timed_out;
+    uint16_t due;
+#endif
+} relay;
 
 static uint8_t co_relay(uint8_t code, const uint8_t *a)
 {
@@ -356,8 +364,19 @@ static uint8_t co_relay(uint8_t code, const uint8_t *a)
         relay.frame[2] = switch_bits(); /* the control board reports them with the DIP id */
 #endif
     relay.frame[6] = BYTE_END;
+#if HEXBOT_V2
+    /* an echo that came after its wait is stale: it would confirm the next relay of its code */
+    while (board_rx_ready(UART0))
+        (void)board_rx_read(UART0);
+    TX(pt, UART0, relay.frame, RELAY_FRAME_LEN);
+    relay.due = (uint16_t)(board_ticks() + ECHO_TIMEOUT_TICKS);
+    do {
+        RX_UNTIL(pt, UART0, relay.due, relay.result, relay.timed_out);
+    } while (!relay.timed_out && relay.result != relay.frame[1]);
+#else
     TX(pt, UART0, relay.frame, RELAY_FRAME_LEN);
     RX_TL(pt, UART0, ECHO_TIMEOUT_TICKS, relay.result);
+#endif
     PT_END(pt);
 }
 
@@ -378,7 +397,9 @@ static uint8_t co_rotate(uint8_t code, uint8_t i, uint8_t t1, uint8_t t2, uint8_
     rotate.args[0] = i, rotate.args[1] = t1, rotate.args[2] = t2, rotate.args[3] = t3;
     PT_CALL(pt, co_relay(rotate.code, rotate.args));
     rotate.ack = relay.result;
-    PT_CALL(pt, co_rotate_mirror());
+    if (!HEXBOT_V2 || rotate.ack == rotate.code) { /* v2 mirrors only what was confirmed */
+        PT_CALL(pt, co_rotate_mirror());
+    }
     PT_END(pt);
 }
 
@@ -519,11 +540,17 @@ static uint16_t ticks_until(uint16_t target)
     return n < 1 ? 1 : (uint16_t)n;
 }
 
-/* MSG1 after '*' (body[1..7]): sign, tens, units of X and of Y, then the side. */
+/* Whether MSG1, POS and Select mode 2 carry coordinate v: |v| <= COORD_LIMIT (bus/codec.py). */
+static uint8_t carried(int16_t v)
+{
+    return v >= -COORD_LIMIT && v <= COORD_LIMIT;
+}
+
+/* MSG1 after '*' (body[1..7]): sign, tens (|v| div 10), units of X and of Y, then the side. */
 static uint8_t msg1_valid(const uint8_t *body)
 {
-    return body[1] <= 1 && body[2] <= 9 && body[3] <= 9 && body[4] <= 1 && body[5] <= 9
-        && body[6] <= 9 && body[7] >= 1 && body[7] <= 6;
+    return body[1] <= 1 && body[3] <= 9 && body[4] <= 1 && body[6] <= 9 && body[7] >= 1
+        && body[7] <= 6 && 10 * body[2] + body[3] <= COORD_LIMIT && 10 * body[5] + body[6] <= COORD_LIMIT;
 }
 
 static int16_t msg1_coord(const uint8_t *p)
@@ -532,21 +559,38 @@ static int16_t msg1_coord(const uint8_t *p)
     return p[0] ? (int16_t)-v : v;
 }
 
-/* sign, tens, units: a coordinate in MSG1 */
+/* sign, tens, units: a coordinate in MSG1 (the caller checked carried(v)) */
 static void line_coord(int16_t v)
 {
     int16_t a = v < 0 ? -v : v;
-    line_add(v < 0), line_add((uint8_t)(a / 10 % 10)), line_add((uint8_t)(a % 10));
+    line_add(v < 0), line_add((uint8_t)(a / 10)), line_add((uint8_t)(a % 10));
+}
+
+/* The neighbour's cell across body side `side`: global side, X and Y. */
+static uint8_t across(uint8_t side, int16_t *x, int16_t *y)
+{
+    uint8_t g = fold(side + Yref);
+    *x = X + fw_sbyte(&NB_DX[g]), *y = Y + fw_sbyte(&NB_DY[g]);
+    return g;
 }
 
 /* '*' MSG1 across body side `side`: the neighbour's cell there, and the side it faces us by */
 static void line_msg1(uint8_t side)
 {
-    uint8_t g = fold(side + Yref);
+    int16_t x, y;
+    uint8_t g = across(side, &x, &y);
     line_add(BYTE_START);
-    line_coord(X + fw_sbyte(&NB_DX[g]));
-    line_coord(Y + fw_sbyte(&NB_DY[g]));
+    line_coord(x);
+    line_coord(y);
     line_add(fold(g + 3));
+}
+
+/* A neighbour on body side `side` whose cell MSG1 carries (one beyond stays unlocalized). */
+static uint8_t tellable(uint8_t side)
+{
+    int16_t x, y;
+    across(side, &x, &y);
+    return neighbour(side) && carried(x) && carried(y);
 }
 
 static uint8_t co_localize(void)
@@ -558,7 +602,7 @@ static uint8_t co_localize(void)
         for (localize.w = 0; localize.w < 6; localize.w++) {
             for (localize.side = 1; localize.side <= 6; localize.side++) {
                 WAIT_TICK(pt, slot_start(localize.w, localize.side));
-                if (!neighbour(localize.side))
+                if (!tellable(localize.side))
                     continue;
                 IrSel(localize.side);
                 DELAY(pt, LOCALIZE_MUX_SETTLE_TICKS);
@@ -650,6 +694,13 @@ static uint8_t co_send_line(void (*build)(void))
     PT_END(pt);
 }
 
+/* Whether `ident` names this module: id 0 ("no id": no DIP switch on, or no id byte at
+ * boot) is never an address, or every module without one would answer at once. */
+static uint8_t named(uint8_t ident)
+{
+    return ident != 0 && ident == id;
+}
+
 /* Select(mode, a, b): which modules obey the frames that follow. */
 static void select_modules(uint8_t mode, uint8_t a, uint8_t b)
 {
@@ -657,11 +708,11 @@ static void select_modules(uint8_t mode, uint8_t a, uint8_t b)
     if (mode == 0) {
         selected = 1, addressed = 0;
     } else if (mode == 1) {
-        selected = addressed = (a == id);
+        selected = addressed = named(a);
     } else if (mode == 2) {
         selected = addressed = L && X == (int16_t)a - COORD_OFFSET && Y == (int16_t)b - COORD_OFFSET;
     } else if (mode == 3) {
-        if (a == id)
+        if (named(a))
             selected = addressed = 1;
     } else {
         selected = addressed = 0;
@@ -675,6 +726,10 @@ static void moved(uint8_t mi, uint8_t cw)
     uint8_t j = fold(mi + Yref);
     X += fw_sbyte(cw ? &CW_DX[j] : &CCW_DX[j]);
     Y += fw_sbyte(cw ? &CW_DY[j] : &CCW_DY[j]);
+    if (!carried(X) || !carried(Y)) { /* beyond what POS reports: not localized, not wrapped */
+        X = Y = 0, Yref = 0, L = 0;
+        return;
+    }
     Yref = (uint8_t)((Yref + (cw ? ORIENTATION_STEP_CW : 6 - ORIENTATION_STEP_CW)) % 6);
 }
 
@@ -687,12 +742,12 @@ static uint8_t co_move(const uint8_t *a)
     PT_BEGIN(pt);
     move.cw = a[0] == 1; /* dir: 1 CW, 2 CCW */
     move.has_ack = 1;
-    if (id == a[1]) {
+    if (named(a[1])) {
         PT_CALL(pt, co_rotate(move.cw ? FC_MCW : FC_MCCW, a[2], a[5], a[6], a[7]));
         move.ack = rotate.ack;
         if (L && (move.ack == FC_MCW || move.ack == FC_MCCW))
             moved(a[2], move.cw);
-    } else if (id == a[3]) {
+    } else if (named(a[3])) {
         substrate_turn = 1;
         PT_CALL(pt, co_rotate(move.cw ? FC_SCW : FC_SCCW, a[4], a[5], a[6], a[7]));
         move.ack = rotate.ack;
@@ -774,7 +829,8 @@ static uint8_t co_dispatch(void)
     if (dispatch.board == BOARD_CONTROL) {
         PT_CALL(pt, co_relay(frame[0], &frame[1]));
         dispatch.ack = relay.result;
-        for (dispatch.k = 0; dispatch.k < 2; dispatch.k++) {
+        /* v2 mirrors only what the control board confirmed: the LEDs would show a coil off */
+        for (dispatch.k = HEXBOT_V2 && dispatch.ack != frame[0] ? 2 : 0; dispatch.k < 2; dispatch.k++) {
             dispatch.mirror = fn_mirror(frame[0], dispatch.k); /* looked up once, not every step */
             PT_CALL(pt, run_comm(dispatch.mirror, &frame[1]));
         }
@@ -808,7 +864,13 @@ static uint8_t resync(void)
 }
 #endif
 
-static struct { pt_t pt; uint8_t byte, n; } listen;
+static struct {
+    pt_t pt;
+    uint8_t byte, n;
+#if HEXBOT_V2
+    uint8_t timed_out;
+#endif
+} listen;
 
 static uint8_t co_listen(void)
 {
@@ -817,21 +879,22 @@ static uint8_t co_listen(void)
     do {
         RX(pt, UART1, listen.byte);
     } while (listen.byte != BYTE_START);
+#if HEXBOT_V2
+    /* v2 reads the '#' too (module_sim/framing.py): each byte within FRAME_BYTE_TICKS, a
+     * silence ends the frame unread; one without its '#' resynchronises on a '*' inside it */
+    for (listen.n = 0; listen.n < PC_FRAME_LEN - 1;) {
+        RX_TL2(pt, UART1, FRAME_BYTE_TICKS, frame[listen.n], listen.timed_out);
+        if (listen.timed_out)
+            PT_EXIT(pt);
+        if (++listen.n == PC_FRAME_LEN - 1 && frame[PC_FRAME_LEN - 2] != BYTE_END) {
+            listen.n = resync();
+            if (listen.n == 0xFF)
+                PT_EXIT(pt);
+        }
+    }
+#else
     for (listen.n = 0; listen.n < 9; listen.n++) {
         RX(pt, UART1, frame[listen.n]);
-    }
-#if HEXBOT_V2
-    /* v2 reads the '#' too and resynchronises on a '*' inside a frame that lacks it */
-    RX(pt, UART1, frame[9]);
-    while (frame[9] != BYTE_END) {
-        listen.n = resync();
-        if (listen.n == 0xFF)
-            PT_EXIT(pt);
-        while (listen.n < 9) {
-            RX(pt, UART1, frame[listen.n]);
-            listen.n++;
-        }
-        RX(pt, UART1, frame[9]);
     }
 #endif
     substrate_turn = 0;

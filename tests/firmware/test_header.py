@@ -63,7 +63,7 @@ def test_c_sources_take_codes_from_the_header() -> None:
 
 
 # -- the programs' timings: named in bus.timing, used by name in both programs ---------------
-MODEL = [ROOT / "module_sim" / "comm_board.py", ROOT / "module_sim" / "control_board.py"]
+MODEL = [ROOT / "module_sim" / n for n in ("comm_board.py", "control_board.py", "framing.py")]
 #: The model's calls whose arguments are waits or show lengths.
 MODEL_TIMED = {"Delay", "Rx", "LFlash1", "LFlash2", "LColor", "LCircle", "JTest", "SPTest", "SNTest",
                "SidePTest", "SideNTest", "JointTest"}

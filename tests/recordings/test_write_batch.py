@@ -15,6 +15,7 @@ from bus.transport import _envelope_json
 from recordings import native
 from recordings.recorder import Recorder
 from synthetic import run_synthetic
+from toolchain import missing
 
 FLEET = "batchtest"
 ROOT = f"hexbot/{FLEET}"
@@ -112,7 +113,7 @@ def _same(tmp_path, samples, batch: int, **kwargs) -> None:
 def path_kind(request, monkeypatch):
     if request.param == "native":
         if native.lib() is None:
-            pytest.skip("no C compiler: the native batch path is not built")
+            missing("the native batch path (a C compiler builds it)")
     else:
         monkeypatch.setattr(native, "_lib", None)
     return request.param
