@@ -23,6 +23,7 @@ from fleet_rig import FleetRig
 CHAIN3 = """
 name = "walter-chain3"
 profile = "v2"
+program = "model"
 fixed = [0, 0]
 goal = [[0, 1], [0, 0], [0, -1]]
 [[modules]]
