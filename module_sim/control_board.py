@@ -14,8 +14,8 @@ from bus.functions import FUNCTIONS, Board
 from bus.pins import (CONTROL_PULLUPS, CONTROL_UART_PINS, DIP_PORT, JOINT, MAGNET_NEG, MAGNET_POS, Pin,
                       dip_id, dip_levels, fold, port_masks)
 from bus.timing import (BOOT_JTEST_ROUNDS, BOOT_JTEST_TICKS, BOOT_SETTLE_TICKS, FRAME_BYTE_TICKS,
-                        HANDSHAKE_RETRY_TICKS, MAGNET_ON_LIMIT_TICKS, SELFTEST_PULSE_TICKS, SOLENOID_ON_LIMIT_TICKS, TICK_NS,
-                        Baud)
+                        HANDSHAKE_RETRY_TICKS, MAGNET_ON_LIMIT_TICKS, SELFTEST_PULSE_TICKS,
+                        SOLENOID_ON_LIMIT_TICKS, TICK_NS, Baud)
 
 from .avr import Delay, Mcu, Program, Rx, Tx, Uart
 from .profiles import Profile
