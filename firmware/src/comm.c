@@ -694,6 +694,13 @@ static uint8_t co_send_line(void (*build)(void))
     PT_END(pt);
 }
 
+/* Whether `ident` names this module: id 0 ("no id": no DIP switch on, or no id byte at
+ * boot) is never an address, or every module without one would answer at once. */
+static uint8_t named(uint8_t ident)
+{
+    return ident != 0 && ident == id;
+}
+
 /* Select(mode, a, b): which modules obey the frames that follow. */
 static void select_modules(uint8_t mode, uint8_t a, uint8_t b)
 {
@@ -701,11 +708,11 @@ static void select_modules(uint8_t mode, uint8_t a, uint8_t b)
     if (mode == 0) {
         selected = 1, addressed = 0;
     } else if (mode == 1) {
-        selected = addressed = (a == id);
+        selected = addressed = named(a);
     } else if (mode == 2) {
         selected = addressed = L && X == (int16_t)a - COORD_OFFSET && Y == (int16_t)b - COORD_OFFSET;
     } else if (mode == 3) {
-        if (a == id)
+        if (named(a))
             selected = addressed = 1;
     } else {
         selected = addressed = 0;
@@ -735,12 +742,12 @@ static uint8_t co_move(const uint8_t *a)
     PT_BEGIN(pt);
     move.cw = a[0] == 1; /* dir: 1 CW, 2 CCW */
     move.has_ack = 1;
-    if (id == a[1]) {
+    if (named(a[1])) {
         PT_CALL(pt, co_rotate(move.cw ? FC_MCW : FC_MCCW, a[2], a[5], a[6], a[7]));
         move.ack = rotate.ack;
         if (L && (move.ack == FC_MCW || move.ack == FC_MCCW))
             moved(a[2], move.cw);
-    } else if (id == a[3]) {
+    } else if (named(a[3])) {
         substrate_turn = 1;
         PT_CALL(pt, co_rotate(move.cw ? FC_SCW : FC_SCCW, a[4], a[5], a[6], a[7]));
         move.ack = rotate.ack;
