@@ -411,7 +411,7 @@ class CommBoard(Mcu):
     def listen(self) -> Program:
         u1 = self.uart1
         if self.profile.checked_frames:
-            msg = yield from read_frame(u1, codec.PC_FRAME_LEN)  # v2 reads the '#' too and resynchronises
+            msg = yield from read_frame(u1, codec.PC_FRAME_LEN)  # v2 reads the '#' too
             if msg is None:
                 return
         else:
