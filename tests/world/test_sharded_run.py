@@ -13,6 +13,7 @@ import time
 
 import pytest
 
+from golden import GOLDEN_THESIS_12_FRAMES
 from hexbench.cli import main
 from hexbench.fleet import SHARD_EXIT_ENV
 from recordings.reader import read_frames
@@ -79,7 +80,7 @@ def test_two_shards_give_the_one_process_frames_and_received_bytes(tmp_path, one
     assert "complete: goal reached" in r.stdout
     assert "lockstep window 30 ms" in r.stdout
     got = _frames(out)
-    assert len(got) == len(one_process) > 2000
+    assert len(got) == len(one_process) == GOLDEN_THESIS_12_FRAMES[0]
     assert got == one_process
     _same_received(out, one_process_received)
 
