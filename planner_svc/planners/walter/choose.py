@@ -21,8 +21,8 @@ from bus.lattice import Cell
 from .frame import Heading, columns, contiguous_columns, heading, turn, unturn
 from .graph import build_h, path_violation, traverse_graph
 
-#: Headings to lay I along from the intersection, preferred first (west of G: modules
-#: come in from G_1's side).
+#: Headings to lay I along from the intersection (west of G: modules come in from G_1's
+#: side); the one in line with the substrate path's first step is tried before these.
 I_HEADINGS = (Heading.SW, Heading.NW, Heading.S, Heading.N)
 #: Candidates whose round model is run before the choice settles on the best clean one.
 MODEL_TRIES = 4
@@ -182,15 +182,19 @@ def candidates(goal: Iterable[Cell], intersection: Cell | None = None
 
 
 def _unmarked(h, k: int) -> str:
-    """Where H breaks: the easternmost column no substrate path can cross, and why."""
+    """Where H breaks: the easternmost column no substrate path can cross, and the first
+    edge its construction refused there or in the column east of it."""
+    import re
     cols = columns(h.goal)
     for x in reversed(list(cols)):
         if not any(c in h.graph for c in cols[x]):
             j = x - h.first_column + 1
-            reasons = [r for r in h.refused if f"{cols[x][0].x}," in r.split("->")[0]]
-            return (f"no cell of column G_{j} can carry a path east"
-                    + (f": {_lattice_text(reasons[0], k)}" if reasons else
-                       ": no goal cell to its east is marked"))
+            def source_x(r: str) -> int | None:
+                m = re.search(r"\((-?\d+),(-?\d+)\) -> ", r)
+                return int(m.group(1)) if m else None
+            reasons = [r for r in h.refused if source_x(r) in (x, x + 1)]
+            return (f"no cell of column G_{j} reaches G_m"
+                    + (f"; {_lattice_text(reasons[0], k)}" if reasons else ""))
     return "no cell of G_1 has an edge"
 
 
@@ -208,7 +212,14 @@ def _rank(c: Candidate, preferred: bool) -> tuple:
 def _lay_chain(goal: frozenset[Cell], c: Candidate) -> list[Cell] | None:
     c0_t = turn(c.path[0], c.orientation)
     goal_t = {turn(g, c.orientation) for g in goal}
-    for hd in I_HEADINGS:
+    order = list(I_HEADINGS)
+    if len(c.path) > 1:  # I in line with p's first step first: no corner at the intersection
+        first = heading(c0_t, turn(c.path[1], c.orientation))
+        back = Heading(list(Heading)[(list(Heading).index(first) + 3) % 6])
+        if back in order:
+            order.remove(back)
+            order.insert(0, back)
+    for hd in order:
         cells = [c0_t]
         for _ in range(len(goal) - 1):
             cells.append(hd.of(cells[-1]))
@@ -218,8 +229,11 @@ def _lay_chain(goal: frozenset[Cell], c: Candidate) -> list[Cell] | None:
 
 
 def choose(goal: Iterable[Cell], chain: Sequence[Cell] | None = None,
-           rules: str = "hexbot") -> Choice:
-    """The substrate path (and I) to reconfigure to ``goal``; :class:`Inadmissible` if none."""
+           rules: str = "hexbot", model: bool = True) -> Choice:
+    """The substrate path (and I) to reconfigure to ``goal``; :class:`Inadmissible` if none.
+
+    The best-ranked candidates' round models are run (``model``) and the first that reaches
+    the goal with every move legal is taken; if none is, the best-ranked one."""
     from .rounds import RoundModel
 
     goal = frozenset(goal)
@@ -240,9 +254,10 @@ def choose(goal: Iterable[Cell], chain: Sequence[Cell] | None = None,
         if i_chain is None:
             continue
         choice = Choice(goal, cand, list(i_chain), len(cands))
+        if not model:
+            return choice
         try:
-            model = RoundModel(goal, choice.chain, cand.path, cand.orientation, rules=rules)
-            rep = model.report()
+            rep = RoundModel(goal, choice.chain, cand.path, cand.orientation, rules=rules).report()
         except ValueError as exc:
             choice.collisions = [str(exc)]
         else:

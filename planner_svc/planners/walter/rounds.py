@@ -127,7 +127,7 @@ class Delays:
 
 DELAYS = {
     "paper": Delays(bidir_cw=0, bidir_ccw=0, climb_cw=1, climb_ccw=0, turn=2, uni=2),
-    "hexbot": Delays(bidir_cw=1, bidir_ccw=0, climb_cw=1, climb_ccw=0, turn=2, uni=3),
+    "hexbot": Delays(bidir_cw=1, bidir_ccw=0, climb_cw=2, climb_ccw=1, turn=2, uni=3),
 }
 
 
@@ -142,7 +142,7 @@ class Schedule:
     """
 
     def __init__(self, goal: Iterable[Cell], substrate: Sequence[Cell], orientation: int,
-                 delays: Delays = DELAYS["hexbot"]) -> None:
+                 delays: Delays = DELAYS["hexbot"], free_end: Cell | None = None) -> None:
         k = orientation
         goal_t = {turn(c, k) for c in goal}
         path_t = [turn(c, k) for c in substrate]
@@ -165,7 +165,17 @@ class Schedule:
         self.north = [unturn(c, k) for c in north]
         self.south = [unturn(c, k) for c in south]
         self.n = len(goal_t)
+        self.first = CW
+        if self.cost == 1 and free_end is not None:
+            self.first = CCW if free_end.distance(self.bend) % 2 else CW
         self.entries = self._build()
+
+    @property
+    def bend(self) -> Cell:
+        """The cell of p where a cost-1 path turns (its last cell otherwise)."""
+        hs = [heading(a, b) for a, b in zip(self.path, self.path[1:])]
+        return next((self.path[i] for i in range(1, len(hs)) if hs[i] is not hs[i - 1]),
+                    self.path[-1])
 
     @property
     def cost_class(self) -> str:
@@ -184,7 +194,7 @@ class Schedule:
 
         for i in range(P):
             if self.cost <= 1:
-                d = CW if i % 2 == 0 else CCW
+                d = self.first if i % 2 == 0 else _opposite(self.first)
                 out.append(Assignment(i, d, delay(d, dl.bidir_cw, dl.bidir_ccw), None,
                                       "(0,0)-bidirectional"))
             else:
@@ -281,7 +291,7 @@ class RoundModel:
 
     def __init__(self, goal: Iterable[Cell], start_chain: Sequence[Cell], substrate: Sequence[Cell],
                  orientation: int = 0, rules: str = "hexbot", max_rounds: int | None = None,
-                 _schedule: "Schedule | None" = None) -> None:
+                 stop_on_refusal: bool = False, _schedule: "Schedule | None" = None) -> None:
         self.goal = frozenset(goal)
         chain = list(start_chain)
         if chain[0] in self.goal and chain[-1] not in self.goal:
@@ -297,14 +307,25 @@ class RoundModel:
         if rules not in DELAYS:
             raise ValueError(f"rules {rules!r}: expected one of {', '.join(DELAYS)}")
         self.rules = rules
+        self.stop_on_refusal = stop_on_refusal
         self.chain = chain
         self.n = len(chain)
         self.max_rounds = max_rounds or 30 * self.n + 60
         self.on_path = frozenset(path[1:])
         if _schedule is None:
-            _schedule = Schedule(self.goal, path, orientation, DELAYS[rules])
+            _schedule = Schedule(self.goal, path, orientation, DELAYS[rules], chain[0])
             self.schedule = _schedule
-            self._arrivals()
+            try:
+                self._arrivals()
+            except ValueError:
+                if _schedule.cost != 1:
+                    raise
+                # With a bend the first module's sense decides who reaches the tail when
+                # (section 5's parity rule); our world's delays can shift that parity, so
+                # the PC tries the other sense too and sends the one that works.
+                _schedule.first = _opposite(_schedule.first)
+                _schedule.entries = _schedule._build()
+                self._arrivals()
         self.schedule = _schedule
         self.modules = [
             _Module(i, c, chain[i - 1] if i > 0 else None, chain[i + 1] if i + 1 < self.n else None,
@@ -503,6 +524,9 @@ class RoundModel:
         while not self.finished() and len(self.rounds) < self.max_rounds:
             r = self.step_round()
             idle = idle + 1 if not r.moves else 0
+            if self.stop_on_refusal and self.world_refusals:
+                self.stuck = "stopped at the first move the world refuses"
+                break
             if idle > 4:
                 self.stuck = f"no module moved in rounds {r.number - 4}..{r.number}"
                 break
