@@ -54,7 +54,7 @@ from typing import Iterable, NamedTuple, Sequence
 
 from bus.lattice import Cell, Direction, Side
 
-from ..rules import find_move, move_violation, to_move, RULE_OFFSETS, xy
+from ..rules import RULE_OFFSETS, move_violation, to_move, xy
 from .frame import columns, heading, turn, unturn
 from .graph import path_cost
 
