@@ -40,6 +40,31 @@ class Fuses:
 THESIS_FUSES = Fuses(low=0x62, high=0xD9, extended=0xFF)
 FUSES = Fuses(low=0x62, high=0xD1, extended=0xFF)
 
+#: Serial programming: each instruction is 4 bytes, 32 SCK periods; a byte of flash or EEPROM,
+#: read or loaded, is one instruction. Then the chip's own waits before the next write
+#: (datasheet, "Minimum Wait Delay Before Writing the Next Flash or EEPROM Location").
+ISP_INSTRUCTION_BITS = 32
+T_WD_FLASH_S = 4.5e-3  # a flash page
+T_WD_EEPROM_S = 9.0e-3  # an EEPROM byte
+T_WD_FUSE_S = 4.5e-3  # a fuse or lock byte
+T_WD_ERASE_S = 9.0e-3  # a chip erase
+
+#: Lock bits (datasheet, "Lock Bit Protection Modes"), 0 = programmed: LB1 alone (mode 2)
+#: stops further programming; LB2 as well (mode 3) stops verification too, so flash and
+#: EEPROM then read back as a pattern, not what they hold. Only a chip erase clears them.
+LOCK_LB1, LOCK_LB2 = 0x01, 0x02
+
+
+def reads_disabled(lock: int) -> bool:
+    """A chip with this lock byte does not let a programmer read its flash and EEPROM."""
+    return not lock & LOCK_LB2
+
+
+def writes_disabled(lock: int) -> bool:
+    """A chip with this lock byte takes no write (flash, EEPROM, fuses) before a chip erase."""
+    return not lock & LOCK_LB1
+
+
 #: A 1 MHz target needs the ISP clock below 250 kHz (a quarter of the CPU clock): avrdude's
 #: ``-B`` bit clock period in microseconds; 8 us = 125 kHz leaves a factor of two.
 ISP_BITCLOCK_US = 8

@@ -152,6 +152,11 @@ class VirtualClock(Clock):
             heapq.heappop(heap)
         return heap[0][0] if heap else None
 
+    def inbox_waiting(self) -> bool:
+        """Whether samples posted at this instant wait to be handled (before time moves on):
+        an engine that runs ahead in windows (module_sim.core) must let them in first."""
+        return bool(self._inbox)
+
     def advance_to(self, t_ns: int) -> None:
         """Move time on to ``t_ns`` inside a timer: an engine that ran a window of events up
         to there (never past :meth:`next_due_ns` or the run's ``until_ns``)."""

@@ -47,6 +47,37 @@ class Burst:
 
 _dumps = json.JSONEncoder(separators=(",", ":")).encode
 
+#: a start time or byte time a burst may carry: the fleet core keeps times in 64 bits, byte
+#: times in 32 (ns; a byte at 2400 baud is 4 166 667)
+MAX_START_NS = 2**63 - 1
+MAX_BYTE_NS = 2**32 - 1
+
+
+def burst_light(d: dict[str, Any]) -> tuple[bytes, list[int], int, list[bool]]:
+    """The bytes, their start times, the byte time and the corrupt flags (``[]``: none) of
+    the burst sample ``d`` (an ``ir/tx`` sample's dict), checked against each other: a
+    sample from elsewhere may be anything, and the medium indexes ``starts`` and
+    ``corrupt`` by byte. ValueError says what is wrong (a ``bad-sample`` event)."""
+    data = d["data"]
+    if not isinstance(data, str):
+        raise ValueError(f"burst data is {type(data).__name__}, not a hex string")
+    try:
+        data = bytes.fromhex(data)
+    except ValueError as exc:
+        raise ValueError(f"burst data is not hex: {exc}") from None
+    starts, byte_ns, corrupt = d["starts"], d["byte_ns"], d.get("corrupt") or []
+    if not isinstance(starts, list) or len(starts) != len(data):
+        raise ValueError(f"burst of {len(data)} bytes has "
+                         f"{len(starts) if isinstance(starts, list) else type(starts).__name__} start times")
+    if not all(type(s) is int and 0 <= s <= MAX_START_NS for s in starts):
+        raise ValueError(f"burst start times must be integers in 0..{MAX_START_NS} ns")
+    if type(byte_ns) is not int or not 0 < byte_ns <= MAX_BYTE_NS:
+        raise ValueError(f"burst byte_ns {byte_ns!r} is not an integer in 1..{MAX_BYTE_NS}")
+    if not isinstance(corrupt, list) or (corrupt and len(corrupt) != len(data)) \
+            or not all(type(c) is bool for c in corrupt):
+        raise ValueError(f"burst of {len(data)} bytes: corrupt must be [] or {len(data)} booleans")
+    return data, starts, byte_ns, corrupt
+
 
 def one_byte_burst(src_json: str, burst: int, value: int, start: int, byte_ns: int, tail: str,
                    corrupt: bool) -> bytes:
@@ -68,50 +99,72 @@ def garble_fixes(dst: str, with_src: str, fixes: list[list[Any]]) -> bytes:
     return _dumps({"type": "garble", "dst": dst, "with": with_src, "fixes": fixes}).encode()
 
 
+#: The event a receiver puts when a correction of the medium comes after its byte's stop bit.
+IR_CONFLICT = "ir-conflict"
+
+
 class IrReceiver:
     """Turns ``ir/rx`` messages into bytes at their stop bits.
 
     ``deliver(transceiver, byte, start_ns, corrupt)`` runs on the clock thread at the
-    moment each byte completes.
+    moment each byte completes. A correction (``garble``, ``cut``) of a byte whose stop bit
+    has passed cannot change what was delivered: it is a conflict, counted in
+    :attr:`conflicts` and told to ``on_conflict(src, burst, index)`` (the medium's lookahead
+    contract, docs/bus.md "Shards", makes it impossible; a broken one shows here).
     """
 
-    def __init__(self, clock: Clock, deliver: Callable[[int, int, int, bool], None]) -> None:
+    def __init__(self, clock: Clock, deliver: Callable[[int, int, int, bool], None],
+                 on_conflict: Callable[[str, int, int], None] | None = None) -> None:
         self.clock = clock
         self.deliver = deliver
+        self.on_conflict = on_conflict
+        self.conflicts = 0
         self._pending: dict[tuple[str, int], list[list[Any]]] = {}
         self._line_busy: dict[int, int] = {}  # transceiver -> end of the last byte delivered
+
+    def _late(self, src: str, burst: int, index: int) -> None:
+        self.conflicts += 1
+        if self.on_conflict is not None:
+            self.on_conflict(src, burst, index)
+
+    def _fix(self, src: str, burst: int, i: int, value: int) -> None:
+        entries = self._pending.get((src, burst))
+        if entries is None:  # every byte of the burst is delivered already
+            self._late(src, burst, i)
+        elif i < len(entries):  # (past the end: a cut took the byte off the air)
+            if entries[i][4] is None:  # delivered already
+                self._late(src, burst, i)
+            else:
+                entries[i][1] = value
+                entries[i][3] = True
 
     def on_message(self, key: str, payload: bytes) -> None:
         d = json.loads(payload)
         if d.get("type") == "cut":  # the transmitter's multiplexer moved on mid-burst
-            entries = self._pending.get((d["src"], d["burst"]))
-            if entries:
-                i = d["index"]
-                if d.get("value") is not None and i < len(entries):
-                    entries[i][1] = d["value"]
-                    entries[i][3] = True
-                    i += 1
-                for e in entries[i:]:
+            src, burst = d["src"], d["burst"]
+            entries = self._pending.get((src, burst))
+            i = d["index"]
+            if entries is None:  # (a burst that never came here: light after a move)
+                return
+            if d.get("value") is not None and i < len(entries):
+                self._fix(src, burst, i, d["value"])
+                i += 1
+            for n, e in enumerate(entries[i:], i):
+                if e[4] is None:
+                    self._late(src, burst, n)
+                else:
                     e[4].cancel()
-                del entries[i:]
-                if not entries:
-                    del self._pending[(d["src"], d["burst"])]
+            del entries[i:]
+            if not entries:
+                del self._pending[(src, burst)]
             return
         if d.get("type") == "garble":
-            pending = self._pending
             if "fixes" in d:
                 for src, burst, i, v in d["fixes"]:
-                    entries = pending.get((src, burst))
-                    if entries and i < len(entries):
-                        entries[i][1] = v
-                        entries[i][3] = True
+                    self._fix(src, burst, i, v)
                 return
-            entries = pending.get((d["src"], d["burst"]))
-            if entries:
-                for i, v in zip(d["index"], d["values"]):
-                    if i < len(entries):
-                        entries[i][1] = v
-                        entries[i][3] = True
+            for i, v in zip(d["index"], d["values"]):
+                self._fix(d["src"], d["burst"], i, v)
             return
         data = bytes.fromhex(d["data"])
         rx = d["rx_transceiver"]
@@ -129,7 +182,9 @@ class IrReceiver:
         entries = self._pending.get(k)
         if entries is None:
             return
-        start, value, transceiver, bad, _, end = entries[n]
+        entry = entries[n]
+        start, value, transceiver, bad, _, end = entry
+        entry[4] = None  # decided: a correction from now on comes too late
         if n == len(entries) - 1:
             del self._pending[k]
         # Two garbled bytes overlapping on one transceiver are one byte on the UART line:

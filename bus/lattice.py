@@ -136,6 +136,23 @@ _VERTEX_OFFSET: dict[Joint, tuple[float, float]] = {
 }
 
 
+def rings(start: Cell, cells: Iterable[Cell]) -> dict[Cell, int]:
+    """Cell -> hops from ``start`` through neighbouring ``cells`` (breadth first); cells not
+    connected to ``start`` are absent. v2 localization reaches ring k in step k."""
+    occupied = set(cells)
+    dist = {start: 0} if start in occupied else {}
+    frontier = list(dist)
+    while frontier:
+        nxt = []
+        for c in frontier:
+            for n in c.neighbours():
+                if n in occupied and n not in dist:
+                    dist[n] = dist[c] + 1
+                    nxt.append(n)
+        frontier = nxt
+    return dist
+
+
 def rotate_offset(offset: tuple[int, int], steps: int) -> tuple[int, int]:
     """Turn a cell offset by ``steps`` sides clockwise: the offset of side s becomes the
     offset of side s + steps (a frame whose side 1 is global side 1 + steps)."""
@@ -143,6 +160,13 @@ def rotate_offset(offset: tuple[int, int], steps: int) -> tuple[int, int]:
     for _ in range(steps % 6):
         x, y = x + y, -x
     return x, y
+
+
+def offset_in_frame(cell: "Cell", reference: "Cell", orientation: int) -> tuple[int, int]:
+    """The offset of ``cell`` from a module at ``reference`` whose orientation is
+    ``orientation``, in that module's frame: what the protocol carries once that module is the
+    reference (``Ref``: (0, 0), Yref 0). The inverse of turning a report into the global frame."""
+    return rotate_offset((cell.x - reference.x, cell.y - reference.y), -orientation)
 
 
 # --- body frame <-> global frame --------------------------------------------------

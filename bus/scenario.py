@@ -21,9 +21,10 @@ from typing import Any, Callable
 
 import fastjsonschema
 
+from .codec import COORD_LIMIT, coord_range
 from .errors import HexbenchError
 from .faults import ActuatorFault, FaultSpecError
-from .lattice import Cell, matrix_to_cells
+from .lattice import Cell, matrix_to_cells, offset_in_frame
 
 PROFILES = ("v2", "thesis-2009")
 #: virtual: the Python model in the fleet; real: a board behind serial ports; firmware: the
@@ -35,6 +36,9 @@ KINDS = ("virtual", "real", "firmware")
 PROGRAMS = ("model", "firmware", "simavr")
 #: The programs built for 300 baud IR (their localization slots are in ticks of it).
 C_PROGRAMS = ("firmware", "simavr")
+#: What a virtual module runs when neither its scenario nor its entry says (``program`` None):
+#: the C firmware on the fleet core where the run allows it, else the Python programs, with the
+#: reason in one line (module_sim.fleet.default_program).
 
 
 class ScenarioError(HexbenchError, ValueError):
@@ -52,6 +56,25 @@ class ModuleSpec:
     program: str | None = None  # None: the scenario's
 
 
+@dataclass(frozen=True)
+class Reach:
+    """The cells the protocol can name: MSG1, POS and Select mode 2 carry a cell relative to the
+    reference (the fixed module after ``Ref``), in its frame, within ``COORD_LIMIT`` of the
+    profile (bus.codec). A run whose start, goal or plan leaves it is refused before it boots."""
+
+    reference: Cell
+    orientation: int
+    profile: str
+
+    def beyond(self, cell: Cell) -> str | None:
+        """None if the protocol carries ``cell``, else one clause saying why not."""
+        dx, dy = offset_in_frame(cell, self.reference, self.orientation)
+        if max(abs(dx), abs(dy)) <= COORD_LIMIT[self.profile]:
+            return None
+        return (f"cell {list(cell)} is ({dx}, {dy}) from the fixed module {list(self.reference)} "
+                f"in its frame; {self.profile} carries {coord_range(self.profile)} from it")
+
+
 @dataclass
 class Scenario:
     name: str
@@ -66,9 +89,10 @@ class Scenario:
     ir_baud: int = 300
     bit_error_rate: float = 0.0
     faults: list[ActuatorFault] = field(default_factory=list)  # injected by the world
-    program: str = "model"  # what virtual modules run unless a module says otherwise
+    #: what virtual modules run unless a module says otherwise; None: the default (above C_PROGRAMS)
+    program: str | None = None
 
-    def program_of(self, module: ModuleSpec) -> str:
+    def program_of(self, module: ModuleSpec) -> str | None:
         return module.program or self.program
 
     @property
@@ -83,6 +107,10 @@ class Scenario:
         m = self.module_at(self.fixed)
         assert m is not None  # checked when loading
         return m
+
+    @property
+    def reach(self) -> Reach:
+        return Reach(self.fixed, self.fixed_module.orientation, self.profile)
 
 
 def builtin_names() -> list[str]:
@@ -120,9 +148,6 @@ def loads(text: str, source: str = "<string>") -> Scenario:
         raise ScenarioError(f"{source}: {where}: invalid TOML: {msg}") from None
     return _build(data, source, text)
 
-
-#: Coordinates a module can be told and report: MSG1 carries two decimal digits and a sign.
-COORD_LIMIT = 99
 
 # --- the schema ----------------------------------------------------------------------
 # Every key of a scenario file, its type and range, as a JSON Schema (draft 4: there an
@@ -194,11 +219,13 @@ def _build(d: dict[str, Any], source: str, text: str) -> Scenario:
     fixed = _fixed(d, modules, goal, at)            # a module's cell, also in the goal
     obstacles = _obstacles(d, modules, goal, at)    # clear of modules and goals
     faults = _faults(d, modules, at)                # each on a module of the fleet
-    program, ir_baud = d.get("program", "model"), d.get("ir_baud", 300)
+    profile = d.get("profile", "v2")
+    _reach(d, modules, goal, fixed, profile, at)    # cells the protocol can name
+    program, ir_baud = d.get("program"), d.get("ir_baud", 300)
     _firmware_baud(program, ir_baud, modules, at)   # the C programs talk at 300 baud
     name = d.get("name", Path(source).stem if not source.startswith("<") else "scenario")
     return Scenario(name=name, modules=modules, fixed=fixed, goal=goal, obstacles=obstacles,
-                    profile=d.get("profile", "v2"), seed=d.get("seed", 0),
+                    profile=profile, seed=d.get("seed", 0),
                     description=d.get("description", ""), source=source, ir_baud=ir_baud,
                     bit_error_rate=float(d.get("bit_error_rate", 0.0)), faults=faults,
                     program=program)
@@ -308,9 +335,6 @@ def _schema_error(exc: fastjsonschema.JsonSchemaValueException, d: dict[str, Any
 
 
 def _cell(v: list[int], key: Key, at: _Where) -> Cell:
-    if max(abs(v[0]), abs(v[1])) > COORD_LIMIT:
-        raise at.expected(key, f"coordinates within -{COORD_LIMIT}..{COORD_LIMIT} "
-                          "(what MSG1 can carry)", v)
     return Cell(v[0], v[1])
 
 
@@ -407,6 +431,22 @@ def _fixed(d: dict[str, Any], modules: list[ModuleSpec], goal: list[Cell], at: _
     return fixed
 
 
+def _reach(d: dict[str, Any], modules: list[ModuleSpec], goal: list[Cell], fixed: Cell,
+           profile: str, at: _Where) -> None:
+    """Every module's cell and every goal cell within what the protocol carries from the fixed
+    module (:class:`Reach`), checked where MSG1 and POS carry them: relative to it."""
+    ref = next(m for m in modules if m.cell == fixed)
+    reach = Reach(fixed, ref.orientation, profile)
+    fleet_key = next(k for k in ("modules", "initial", "initial_matrix") if k in d)
+    goal_key = next((k for k in ("goal", "goal_matrix") if k in d), fleet_key)
+    for what, key, cells in (("the fleet", fleet_key, [m.cell for m in modules]),
+                             ("the goal", goal_key, goal)):
+        for i, cell in enumerate(cells):
+            if why := reach.beyond(cell):
+                where: Key = {"modules": (key, i, "cell"), "initial": (key, i), "goal": (key, i)}.get(key, (key,))
+                raise at.error(f"{what} leaves what the protocol can name: {why}", where)
+
+
 def _obstacles(d: dict[str, Any], modules: list[ModuleSpec], goal: list[Cell],
                at: _Where) -> list[Cell]:
     obstacles = _cells(d.get("obstacles", []), "obstacles", at)
@@ -431,7 +471,7 @@ def _faults(d: dict[str, Any], modules: list[ModuleSpec], at: _Where) -> list[Ac
     return faults
 
 
-def _firmware_baud(program: str, ir_baud: int, modules: list[ModuleSpec], at: _Where) -> None:
+def _firmware_baud(program: str | None, ir_baud: int, modules: list[ModuleSpec], at: _Where) -> None:
     if ir_baud != 300 and (program in C_PROGRAMS or any(m.program in C_PROGRAMS for m in modules)):
         raise at.expected(("ir_baud",), "300 with program 'firmware' or 'simavr' (the C programs "
                           "are built for 300 baud IR)", ir_baud)
@@ -499,6 +539,13 @@ def override(sc: Scenario, *, seed: int | None = None, profile: str | None = Non
         extra.append(f)
     if profile is not None and profile not in PROFILES:
         raise ScenarioError(f"profile {profile!r}: expected one of {', '.join(PROFILES)}")
+    if profile is not None:
+        reach = dataclasses.replace(sc.reach, profile=profile)
+        for what, cells in (("fleet", sc.initial), ("goal", sc.goal)):
+            why = next((w for c in cells if (w := reach.beyond(c))), None)
+            if why:
+                raise ScenarioError(f"--profile {profile}: the {what} of scenario {sc.name!r} leaves "
+                                    f"what the protocol can name: {why}")
     if program is not None and program not in PROGRAMS:
         raise ScenarioError(f"program {program!r}: expected one of {', '.join(PROGRAMS)}")
     if program is not None:

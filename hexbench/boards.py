@@ -1,8 +1,8 @@
 """``hexbench boards``: which HexBot board answers on which serial port.
 
-The serial adapters pyserial finds (``serial.tools.list_ports``: device, USB serial number,
-description, the ``/dev/serial/by-id`` name pointing at it) and the ports given on the command
-line (ptys and URLs, which list_ports does not show) are each opened at the IR baud rate as the
+The ports given on the command line (devices, ptys and URLs), or with none given the serial
+adapters pyserial finds (``serial.tools.list_ports``: device, USB serial number, description,
+the ``/dev/serial/by-id`` name pointing at it), are each opened at the IR baud rate as the
 PC's central transceiver (:class:`~hexbench.serial_pc.SerialPc`), all at once (a thread each,
 a few seconds each), and asked what answers:
 
@@ -43,16 +43,17 @@ OK, ERROR = 0, 1
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "boards", help="which HexBot board answers on which serial port",
-        description="List the serial adapters (pyserial list_ports: USB serial number, "
-                    "/dev/serial/by-id name) and the PORTs given, open each at the IR baud rate as "
+        description="Ask the PORTs given, or with none the serial adapters pyserial finds "
+                    "(list_ports: USB serial number, /dev/serial/by-id name): open each at the IR baud rate as "
                     "the PC's central transceiver and ask what answers (v2 Report and Version; a "
                     "thesis-2009 module answers 'N'), all ports at once. Exit 0 if a board "
                     "answered, 1 if none did, 2 on usage errors. See docs/hil.md.")
     p.add_argument("ports", nargs="*", metavar="PORT",
-                   help="more ports or pyserial URLs to ask (ptys and socket:// URLs are not listed "
-                        "by list_ports), e.g. /tmp/hx1 socket://lab-pi:7000")
-    p.add_argument("--no-scan", action="store_true",
-                   help="ask only the PORTs given, not the adapters list_ports finds")
+                   help="the ports or pyserial URLs to ask, and only these (ptys and socket:// URLs "
+                        "are not listed by list_ports), e.g. /dev/ttyUSB0 /tmp/hx1 socket://lab-pi:7000; "
+                        "none: every adapter list_ports finds")
+    p.add_argument("--scan", action="store_true",
+                   help="with PORTs: ask the adapters list_ports finds as well")
     p.add_argument("--baud", type=baud, default=int(Baud.IR), help="IR baud rate (default 300)")
     p.add_argument("--timeout", type=float, default=3.0,
                    help="seconds to wait for each answer (default 3; a substrate answers 1 s late)")
@@ -97,23 +98,27 @@ def adapters() -> list[Port]:
             for info in sorted(list_ports.comports(), key=lambda i: i.device)]
 
 
-def ports_to_ask(given: list[str], *, scan: bool = True) -> list[Port]:
-    """The adapters found (unless not ``scan``), then the ports given; a given path that names a
-    found adapter (e.g. its by-id link) is that adapter, opened by the name given."""
+def ports_to_ask(given: list[str], *, scan: bool = False) -> list[Port]:
+    """The ports given, and only these (a board owner may have other devices on other ports);
+    with none given, or with ``scan``, the adapters found come first. A given path that names a
+    found adapter (e.g. its by-id link) is that adapter, opened by the name given; listing the
+    adapters opens none of them."""
     import serial
 
-    found = adapters() if scan else []
+    found = adapters()
     links = _by_id()
     by_device = {os.path.realpath(p.device): p for p in found}
-    ports = list(found)
+    ports = list(found) if scan or not given else []
     for url in given:
         if "://" in url:
             try:
                 serial.serial_for_url(url, do_not_open=True)
             except ValueError as exc:  # an unknown scheme
                 raise UsageError(f"{url}: {exc}") from None
-        elif by_device.get(os.path.realpath(url)) is not None:
-            by_device[os.path.realpath(url)].url = url
+        elif (adapter := by_device.get(os.path.realpath(url))) is not None:
+            adapter.url = url
+            if all(p is not adapter for p in ports):
+                ports.append(adapter)
             continue
         if all(p.url != url for p in ports):
             ports.append(Port(url, url, by_id=None if "://" in url else links.get(os.path.realpath(url))))
@@ -333,9 +338,7 @@ def table(answers: list[Answer]) -> str:
 def cmd_boards(args: argparse.Namespace) -> int:
     if args.timeout <= 0:
         raise UsageError(f"--timeout {args.timeout:g}: expected seconds > 0")
-    if args.no_scan and not args.ports:
-        raise UsageError("--no-scan and no PORT: nothing to ask")
-    ports = ports_to_ask(args.ports, scan=not args.no_scan)
+    ports = ports_to_ask(args.ports, scan=args.scan)
     if not ports:
         print("hexbench boards: no serial adapter found (pyserial list_ports); give ports or URLs: "
               "hexbench boards /dev/ttyUSB0 socket://lab-pi:7000", file=sys.stderr)

@@ -26,7 +26,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bus import UsageError
-from bus.chip import FUSES, ISP_BITCLOCK_US, BoardKind, board_record, read_board_record
+from bus.chip import (FUSES, ISP_BITCLOCK_US, BoardKind, board_record, read_board_record, reads_disabled,
+                      writes_disabled)
 from bus.codec import encode_command
 from bus.errors import HexbenchError
 from bus.pins import COMM_PULLUPS, CONTROL_PULLUPS, port_masks
@@ -301,39 +302,58 @@ def cmd_flash(args: argparse.Namespace) -> int:
     folder, backup = _back_up(avrdude, args.backup_dir, args.board)
     found = read_board_record(backup["eeprom"])
     print(f"backup: {folder} (flash {used(backup['flash'])} B in use, fuses "
-          f"{fuses_text(fuses_of(backup))}, board record: {found.name.lower() if found else 'none'})")
+          f"{fuses_text(fuses_of(backup))}, lock 0x{backup['lock'][0]:02X}, board record: "
+          f"{found.name.lower() if found else 'none'})")
     if found is not None and found != kind and not args.force_board:
         raise UsageError(f"the board's EEPROM says it is a {found.name.lower()} board, not a "
                          f"{args.board} board: nothing was written (--force-board to write anyway)")
-    verified = _write(avrdude, image, kind, folder)
+    verified = _write(avrdude, image, kind, folder, backup)
     print(f"fuses: {fuses_text(FUSES)}, {sum(verified.get(m, 0) for m in ('lfuse', 'hfuse', 'efuse'))} "
           "of 3 verified")
     print(f"flash: {image}, {verified.get('flash', 0)} B verified")
-    print(f"eeprom: board record '{args.board}' at 0, {verified.get('eeprom', 0)} B verified")
+    print(f"eeprom: board record '{args.board}' at 0"
+          + (", the rest as backed up" if writes_disabled(backup["lock"][0]) else "")
+          + f", {verified.get('eeprom', 0)} B verified")
     return 0
 
 
 def _back_up(avrdude: Avrdude, parent: Path, board: str) -> tuple[Path, dict[str, bytes]]:
-    """The board's memories, read into a new folder before anything is written."""
+    """The board's memories, read into a new folder before anything is written. A chip
+    locked against reading gives a pattern, not its program: that is no backup."""
     folder = _backup_folder(parent, board)
     try:
-        return folder, avrdude.read(folder)
+        memories = avrdude.read(folder)
     except AvrdudeError as exc:
         shutil.rmtree(folder, ignore_errors=True)  # not a backup: no folder that looks like one
         raise UsageError(f"backup failed, nothing was written: {exc}") from None
+    lock = memories["lock"][0]
+    if reads_disabled(lock):
+        shutil.rmtree(folder, ignore_errors=True)
+        raise UsageError(f"the chip is locked (lock byte 0x{lock:02X}: LB2 programmed), so its flash and "
+                         "EEPROM read back as a pattern, not a backup: nothing was written; only a chip "
+                         f"erase unlocks it ({avrdude.command_line('-e')}), "
+                         "and its program is lost then")
+    return folder, memories
 
 
-def _write(avrdude: Avrdude, image: Path, kind: BoardKind, backup: Path) -> dict[str, int]:
+def _write(avrdude: Avrdude, image: Path, kind: BoardKind, backup: Path,
+           memories: dict[str, bytes]) -> dict[str, int]:
     """Fuses, then image and board record; the bytes avrdude verified of each memory.
 
     The fuses go first, in a run of their own: writing flash begins with a chip erase, and
-    only a programmed EESAVE keeps the EEPROM through it."""
+    only a programmed EESAVE keeps the EEPROM through it. A write-protected chip (lock mode
+    2) takes no fuse before a chip erase: it is erased first, and its EEPROM, which that erase
+    may clear, is written back whole from the backup with the record in it."""
+    eeprom = board_record(kind)
     try:
+        if writes_disabled(memories["lock"][0]):
+            avrdude.erase()
+            eeprom += memories["eeprom"][len(eeprom):]
         verified = avrdude.write_fuses(FUSES)
         with tempfile.TemporaryDirectory(prefix="hexbench-flash") as tmp:
             record = Path(tmp) / "record.hex"
-            record.write_text(format_ihex(board_record(kind)), encoding="ascii")
+            record.write_text(format_ihex(eeprom), encoding="ascii")
             return verified | avrdude.write(flash=image, eeprom=record)
     except AvrdudeError as exc:
         raise HexbenchError(f"{exc}; the board may be half-written: its previous memories are in "
-                            f"{backup} (docs/firmware.md says how to restore them)") from None
+                            f"{backup}, restore them with: {avrdude.restore_command(backup)}") from None

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -40,7 +41,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     from bus.scenario import ScenarioError, load
 
     from planner_svc import planners
-    from planner_svc.planners.plan import PlanError, validate
+    from planner_svc.planners.plan import PlanError, check_reach, validate
 
     if args.list:
         for name in planners.names():
@@ -68,4 +69,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
     if args.png:
         from planner_svc.planners.draw import draw_plan
         print(f"drawing: {draw_plan(plan, args.png)}")
+    try:
+        check_reach(plan, scenario.reach)
+    except PlanError as exc:
+        print(f"hexbench plan: {exc} ('hexbench run' refuses it)", file=sys.stderr)
+        return 1
     return 0 if plan.ok else 1

@@ -8,26 +8,47 @@ failed), not avrdude's ten.
 
 A programmer that stays silent for avrdude's read timeout (5 s) is not there: while
 reading (:meth:`Avrdude.read`, which writes nothing) avrdude is stopped then instead of
-retrying ten times (50 s with ``-c stk500v1``).
+retrying ten times (50 s with ``-c stk500v1``). Every run also has a deadline sized to the
+bytes it moves at the bit clock (:func:`run_deadline_s`): a programmer that stops answering
+half-way through a write, which avrdude retries byte by byte for minutes, ends the run then.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import re
+import shlex
 import shutil
 import subprocess
+import threading
 from pathlib import Path
 
-from bus.chip import AVRDUDE_PART, ISP_BITCLOCK_US, Fuses
+from bus.chip import (AVRDUDE_PART, EEPROM_SIZE, FLASH_PAGE, FLASH_SIZE, ISP_BITCLOCK_US,
+                      ISP_INSTRUCTION_BITS, SIGNATURE, T_WD_EEPROM_S, T_WD_ERASE_S, T_WD_FLASH_S,
+                      T_WD_FUSE_S, Fuses)
 from bus.errors import HexbenchError
 
 from .isp import MEMORY_SIZES, read_ihex
 
-#: What a backup holds: every memory a flash changes (not the lock byte, which it never writes).
-BACKUP_MEMORIES = ("flash", "eeprom", "lfuse", "hfuse", "efuse")
+#: What a backup holds: every memory a flash changes, the lock byte (a chip erase clears it)
+#: last, so that a restore writes it after the flash whose erase would clear it again.
+BACKUP_MEMORIES = ("flash", "eeprom", "lfuse", "hfuse", "efuse", "lock")
+#: A run's deadline: what its bytes take at the bit clock, DEADLINE_MARGIN times over, plus
+#: RUN_OVERHEAD_S (avrdude's start, sync and signature, a USB programmer's setup). It bounds a
+#: programmer that stopped answering, not a slow one: both are generous.
+RUN_OVERHEAD_S = 10.0
+DEADLINE_MARGIN = 3.0
+#: The line to a serial programmer (avrdude's default for ``-c stk500v1``); USB ones are faster.
+PROGRAMMER_BAUD = 115_200
+#: After SIGTERM, how long avrdude may take to go before it is killed.
+STOP_S = 5.0
 _SILENT = "programmer is not responding"
+#: What avrdude says it is doing ("writing 10936 bytes flash ...", "erasing chip").
+_DOING = re.compile(r"^avrdude: ((?:reading|writing|verifying|erasing) [^.]*)")
 _VERIFIED = re.compile(r"(\d+) bytes? of (\w+) verified")
+#: "device signature = 0x1e9403 (probably m16)", "... = 0x000000 (retrying)"
+_SIGNATURE = re.compile(r"device signature = 0x([0-9a-fA-F]{6})(?: \(probably ([^)]+)\))?")
 
 
 class AvrdudeError(HexbenchError):
@@ -54,8 +75,22 @@ class Avrdude:
         return [self.exe, "-q", "-p", AVRDUDE_PART, "-c", self.programmer, *port,
                 "-B", f"{self.bitclock_us:g}", *args]
 
-    def run(self, *args: str, stop_when_silent: bool = False) -> str:
-        """Run avrdude with ``args``; its messages, or :class:`AvrdudeError`."""
+    def command_line(self, *args: str) -> str:
+        """:meth:`command` as a person types it."""
+        return shlex.join(["avrdude", *self.command(*args)[1:]])
+
+    def restore_command(self, folder: str | os.PathLike[str]) -> str:
+        """The one avrdude line that writes a backup folder back (flash first: its chip erase
+        comes before the EEPROM, the fuses and the lock byte)."""
+        return self.command_line(*(f"-U{m}:w:{Path(folder) / f'{m}.hex'}:i" for m in BACKUP_MEMORIES))
+
+    @property
+    def _on(self) -> str:
+        return f"-c {self.programmer}" + (f" -P {self.port}" if self.port else "")
+
+    def run(self, *args: str, deadline_s: float, stop_when_silent: bool = False) -> str:
+        """Run avrdude with ``args``; its messages, or :class:`AvrdudeError` (also when it has
+        not finished after ``deadline_s``: it is stopped then)."""
         try:
             proc = subprocess.Popen(self.command(*args), stdin=subprocess.DEVNULL,
                                     stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
@@ -63,20 +98,41 @@ class Avrdude:
         except OSError as exc:
             raise AvrdudeError(f"cannot run {self.exe}: {exc.strerror or exc}") from None
         assert proc.stderr is not None
-        lines = []
-        with proc.stderr:
+        lines: list[str] = []
+
+        def take_messages() -> None:
+            assert proc.stderr is not None
             for line in proc.stderr:
                 lines.append(line)
                 if stop_when_silent and _SILENT in line:
                     proc.terminate()
-                    break
-        if proc.wait() != 0:
+
+        reader = threading.Thread(target=take_messages, name="avrdude-messages", daemon=True)
+        reader.start()
+        try:
+            code = proc.wait(timeout=deadline_s)
+        except subprocess.TimeoutExpired:
+            _stop(proc)
+            reader.join(timeout=STOP_S)  # the messages up to the stop
+            raise AvrdudeError(self._overdue(lines, deadline_s)) from None
+        finally:
+            reader.join(timeout=STOP_S)  # the pipe ends with the process
+            proc.stderr.close()
+        if code != 0:
             raise AvrdudeError(self._reason(lines))
         return "".join(lines)
 
+    def _overdue(self, lines: list[str], deadline_s: float) -> str:
+        """One line for a run stopped at its deadline: what avrdude was doing, and why."""
+        doing = [m.group(1).strip() for m in map(_DOING.match, lines) if m]
+        why = (f"the programmer ({self._on}) stopped answering" if any(_SILENT in ln for ln in lines)
+               else f"the programmer ({self._on}) is too slow or hung")
+        return (f"avrdude had not finished after its {deadline_s:.0f} s deadline"
+                + (f" (at: {doing[-1]})" if doing else "") + f" and was stopped: {why}")
+
     def _reason(self, lines: list[str]) -> str:
         """One line for avrdude's failure."""
-        on = f"-c {self.programmer}" + (f" -P {self.port}" if self.port else "")
+        on = self._on
         text = "".join(lines)
         if _SILENT in text or "not in sync" in text:
             return (f"the programmer ({on}) does not answer: is it plugged in, on that port, "
@@ -90,14 +146,26 @@ class Avrdude:
             if "cannot open port" in line:
                 return f"{said} (avrdude {on})"
             if "expected signature" in line:
-                found = [ln.split("=", 1)[1].strip() for ln in lines if "device signature =" in ln]
-                return f"the chip is not an ATmega162: its signature is {(found or ['unreadable'])[0]}"
+                return self._signature_reason(text)
             if line.startswith("avrdude: verifying "):
                 memory = said.split()[1]
             if "!= input" in line:
                 return f"avrdude wrote the {memory} but reads back other bytes: {line.strip()}"
         errors = [ln.strip() for ln in lines if "error" in ln] or [ln.strip() for ln in lines if ln.strip()]
         return f"avrdude failed ({on}): {(errors or ['no message'])[0]}"
+
+    def _signature_reason(self, text: str) -> str:
+        """A signature of all zeros or all ones is MISO held at one level: no chip answers."""
+        found = _SIGNATURE.findall(text)
+        if not found:
+            return "the chip's signature is unreadable"
+        signature, part = found[-1]  # avrdude's last try, without its "(retrying)"
+        if signature.lower() in ("000000", "ffffff"):
+            return (f"no chip answers the programmer (-c {self.programmer}; signature 0x{signature}): "
+                    "check the board's power, the ISP cable and the bit clock (--bitclock)")
+        return (f"the chip is not an ATmega162: its signature is 0x{signature}"
+                + (f" ({part})" if part and not part.startswith(".") else "")
+                + f", not 0x{SIGNATURE.hex()}")
 
     # -- the steps ----------------------------------------------------------------------------------
     def read(self, folder: str | os.PathLike[str],
@@ -107,7 +175,9 @@ class Avrdude:
         The folder must exist. Every file is read back and checked: a file missing or
         unreadable is an :class:`AvrdudeError`, as is a failed run."""
         folder = Path(folder)
-        self.run(*(f"-U{m}:r:{folder / f'{m}.hex'}:i" for m in memories), stop_when_silent=True)
+        deadline = run_deadline_s(self.bitclock_us, read=sum(MEMORY_SIZES[m] for m in memories))
+        self.run(*(f"-U{m}:r:{folder / f'{m}.hex'}:i" for m in memories), deadline_s=deadline,
+                 stop_when_silent=True)
         out = {}
         for m in memories:
             try:
@@ -116,9 +186,13 @@ class Avrdude:
                 raise AvrdudeError(f"avrdude's {m} read is unusable: {exc}") from None
         return out
 
+    def erase(self) -> None:
+        """A chip erase: flash and lock bits to 0xFF, the EEPROM too unless EESAVE is programmed."""
+        self.run("-e", deadline_s=run_deadline_s(self.bitclock_us, erase=True))
+
     def write_fuses(self, fuses: Fuses) -> dict[str, int]:
         """Write the three fuse bytes; the bytes avrdude verified of each."""
-        return _verified(self.run(*fuses.avrdude_args()))
+        return _verified(self.run(*fuses.avrdude_args(), deadline_s=run_deadline_s(self.bitclock_us, fuses=3)))
 
     def write(self, *, flash: str | os.PathLike[str], eeprom: str | os.PathLike[str]) -> dict[str, int]:
         """Write Intel-hex files; the bytes avrdude verified of each memory.
@@ -126,7 +200,36 @@ class Avrdude:
         Writing flash erases the chip first (avrdude's auto-erase). EEPROM bytes the file
         does not name are left as they are, by avrdude, and through that erase, by the chip,
         only if EESAVE is programmed."""
-        return _verified(self.run(f"-Uflash:w:{flash}:i", f"-Ueeprom:w:{eeprom}:i"))
+        try:
+            sizes = {"flash": used(read_ihex(flash, FLASH_SIZE)), "eeprom": used(read_ihex(eeprom, EEPROM_SIZE))}
+        except (OSError, ValueError) as exc:
+            raise AvrdudeError(f"cannot read the image: {exc}") from None
+        return _verified(self.run(f"-Uflash:w:{flash}:i", f"-Ueeprom:w:{eeprom}:i",
+                                  deadline_s=run_deadline_s(self.bitclock_us, **sizes)))
+
+
+def run_deadline_s(bitclock_us: float, *, read: int = 0, flash: int = 0, eeprom: int = 0,
+                   fuses: int = 0, erase: bool = False) -> float:
+    """The deadline of one avrdude run that reads ``read`` bytes and writes ``flash``,
+    ``eeprom`` and ``fuses`` bytes (each written byte is read back: avrdude verifies). A byte
+    costs one serial-programming instruction at the bit clock and 10 bits on the programmer's
+    line; writes add the chip's waits (a page of flash, a byte of EEPROM, a fuse, the erase
+    that writing flash begins with)."""
+    per_byte = ISP_INSTRUCTION_BITS * bitclock_us * 1e-6 + 10 / PROGRAMMER_BAUD
+    waits = (math.ceil(flash / FLASH_PAGE) * T_WD_FLASH_S + (T_WD_ERASE_S if flash or erase else 0.0)
+             + eeprom * T_WD_EEPROM_S + fuses * T_WD_FUSE_S)
+    work = (read + 2 * (flash + eeprom + fuses)) * per_byte + waits
+    return RUN_OVERHEAD_S + DEADLINE_MARGIN * work
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    """SIGTERM, then SIGKILL if avrdude has not gone after STOP_S."""
+    proc.terminate()
+    try:
+        proc.wait(timeout=STOP_S)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
 
 
 def _verified(said: str) -> dict[str, int]:
@@ -139,4 +242,4 @@ def used(data: bytes) -> int:
     return len(data.rstrip(b"\xff"))
 
 
-__all__ = ["Avrdude", "AvrdudeError", "BACKUP_MEMORIES", "used"]
+__all__ = ["Avrdude", "AvrdudeError", "BACKUP_MEMORIES", "run_deadline_s", "used"]

@@ -12,7 +12,9 @@ datasheet, "Serial Programming Instruction Set"), whose fourth answer byte comes
 :class:`Atmega162` is the chip as those instructions see it: flash that a page write can
 only clear bits of (a chip erase sets them again), EEPROM written byte by byte, fuses, the
 lock byte. A chip erase keeps the EEPROM only while EESAVE (bit 3 of the high fuse) is
-programmed, and serial programming cannot change SPIEN, as on the part. The chip runs at
+programmed, and serial programming cannot change SPIEN, as on the part. Lock bits work as on
+the part: LB1 programmed stops every write but a chip erase, LB2 as well makes flash and
+EEPROM read back as a pattern (the datasheet does not say which; here, the address's low byte). The chip runs at
 the clock its low fuse selects (internal RC, CKDIV8), and, like the part, does not enter
 programming mode when the programmer's SCK is faster than a quarter of that clock: without
 avrdude's ``-B`` a 1 MHz chip does not answer.
@@ -29,9 +31,10 @@ from __future__ import annotations
 import os
 import threading
 from pathlib import Path
-from typing import Protocol
+from typing import Callable, Protocol
 
-from bus.chip import EEPROM_SIZE, FLASH_PAGE, FLASH_SIZE, ISP_BITCLOCK_US, SIGNATURE, Fuses
+from bus.chip import (EEPROM_SIZE, FLASH_PAGE, FLASH_SIZE, ISP_BITCLOCK_US, SIGNATURE, Fuses, reads_disabled,
+                      writes_disabled)
 
 # -- Intel hex --------------------------------------------------------------------------------------
 
@@ -129,6 +132,7 @@ class Atmega162:
         self.memories = {name: bytearray(b"\xff" * size) for name, size in MEMORY_SIZES.items()}
         self.fuses = fuses
         self.calibration = 0xA5  # the RC oscillator's factory calibration byte
+        self.signature = SIGNATURE  # another part in the socket has its own
         self.erases = 0
         self._flash_buffer: dict[int, int] = {}  # the page buffer: byte offset in page -> byte
         self._eeprom_buffer: dict[int, int] = {}
@@ -154,6 +158,17 @@ class Atmega162:
     @property
     def lock(self) -> int:
         return self.memories["lock"][0]
+
+    @property
+    def programming_disabled(self) -> bool:
+        """Lock mode 2 or 3: only a chip erase changes the chip."""
+        return writes_disabled(self.lock)
+
+    def read(self, memory: str, addr: int) -> int:
+        """A byte of flash or EEPROM as a programmer reads it: a pattern on a chip locked
+        against verification (lock mode 3)."""
+        data = self.memories[memory]
+        return addr & 0xFF if reads_disabled(self.lock) else data[addr % len(data)]
 
     @property
     def cpu_hz(self) -> int:
@@ -187,16 +202,22 @@ class Atmega162:
 
     def write_flash(self, addr: int, data: bytes) -> None:
         """Program bytes from ``addr``: a write clears bits, only an erase sets them."""
+        if self.programming_disabled:
+            return
         flash = self.flash
         for i, b in enumerate(data):
             flash[(addr + i) % FLASH_SIZE] &= b
 
     def write_eeprom(self, addr: int, data: bytes) -> None:
         """EEPROM writes erase the byte first: the byte becomes ``data``."""
+        if self.programming_disabled:
+            return
         for i, b in enumerate(data):
             self.eeprom[(addr + i) % EEPROM_SIZE] = b
 
     def _write_fuse(self, name: str, value: int) -> None:
+        if self.programming_disabled:
+            return
         if name == "hfuse":
             value = value & ~SPIEN | self.memories["hfuse"][0] & SPIEN
         self.memories[name][0] = value | _UNUSED.get(name, 0)
@@ -206,7 +227,7 @@ class Atmega162:
         op, b1, b2, b3 = instr
         word = (b1 << 8 | b2) & 0x1FFF
         if op in (0x20, 0x28):  # read program memory, low/high byte of a word
-            return self.flash[word * 2 + (op == 0x28)]
+            return self.read("flash", word * 2 + (op == 0x28))
         if op in (0x40, 0x48):  # load program memory page, low/high byte
             self._flash_buffer[(b2 % _WORDS_PER_PAGE) * 2 + (op == 0x48)] = b3
         elif op == 0x4C:  # write program memory page
@@ -215,7 +236,7 @@ class Atmega162:
                 self.write_flash(page * 2 + off, bytes((b,)))
             self._flash_buffer.clear()
         elif op == 0xA0:  # read EEPROM
-            return self.eeprom[(b1 << 8 | b2) % EEPROM_SIZE]
+            return self.read("eeprom", b1 << 8 | b2)
         elif op == 0xC0:  # write EEPROM
             self.write_eeprom(b1 << 8 | b2, bytes((b3,)))
         elif op == 0xC1:  # load EEPROM page
@@ -226,7 +247,7 @@ class Atmega162:
                 self.write_eeprom(page + off, bytes((b,)))
             self._eeprom_buffer.clear()
         elif op == 0x30:  # read signature byte
-            return SIGNATURE[b2 & 3] if b2 & 3 < len(SIGNATURE) else 0x00
+            return self.signature[b2 & 3] if b2 & 3 < len(self.signature) else 0x00
         elif op == 0x38:  # read calibration byte
             return self.calibration
         elif (op, b1) in _READS:
@@ -241,6 +262,19 @@ class Atmega162:
             elif b1 == 0x53:  # programming enable: echoed in the third byte
                 return b2
         return 0x00  # also "ready" for the 0xF0 poll
+
+
+class EmptySocket(Atmega162):
+    """No chip answers the programmer (an empty socket, an unpowered board, a loose ISP cable,
+    or SCK too fast for the chip): MISO stays at one ``level``, so every instruction's answer
+    byte, the signature's too, is 0x00 (MISO pulled low) or 0xFF (floating high)."""
+
+    def __init__(self, level: int) -> None:
+        super().__init__()
+        self.level = level
+
+    def spi(self, instr: bytes) -> int:
+        return self.level
 
 
 _READS = {(0x50, 0x00): "lfuse", (0x58, 0x08): "hfuse", (0x50, 0x08): "efuse", (0x58, 0x00): "lock"}
@@ -287,6 +321,10 @@ class Stk500Programmer:
         self.parameters = {0x80: 2, 0x81: 1, 0x82: 18, 0x83: 0, 0x84: 50, 0x85: 50, 0x86: 0,
                            0x87: 1, 0x88: 0, SCK_DURATION: SCK_DURATION_START, 0x98: 3}
         self.device_code: int | None = None  # what avrdude's SET_DEVICE said the part is
+        #: From the first command this says True to, the programmer answers nothing more (it
+        #: hung, or its cable was pulled) while avrdude goes on: a silent programmer, for tests.
+        self.silent_from: Callable[[bytes], bool] | None = None
+        self.silent = False
         self.progmode = False
         self.commands = 0
         self._address = 0
@@ -350,7 +388,10 @@ class Stk500Programmer:
                 return
             command = bytes(rx[:n])
             del rx[:n]
-            self.line.write(self.answer(command))
+            if not self.silent and self.silent_from is not None and self.silent_from(command):
+                self.silent = True
+            if not self.silent:
+                self.line.write(self.answer(command))
 
     @staticmethod
     def _length(rx: bytearray) -> int | None:
@@ -378,7 +419,7 @@ class Stk500Programmer:
         if op == UNIVERSAL:
             return bytes((INSYNC, self.chip.spi(args), OK))
         if op == READ_SIGN:
-            return bytes((INSYNC,)) + SIGNATURE + bytes((OK,))
+            return bytes((INSYNC,)) + bytes(self.chip.spi(bytes((0x30, 0, i, 0))) for i in range(3)) + bytes((OK,))
         if op == READ_PAGE:
             data = self._page(args[2], args[0] << 8 | args[1])
             return bytes((INSYNC,)) + data + bytes((OK,)) if data is not None else bytes((INSYNC, FAILED))
@@ -415,13 +456,13 @@ class Stk500Programmer:
 
     def _page(self, memtype: int, size: int) -> bytes | None:
         if memtype == ord("F"):
-            start, memory = self._address * 2, self.chip.flash
+            start, memory = self._address * 2, "flash"
         elif memtype == ord("E"):
-            start, memory = self._address, self.chip.eeprom
+            start, memory = self._address, "eeprom"
         else:
             return None
-        return bytes(memory[(start + i) % len(memory)] for i in range(size))
+        return bytes(self.chip.read(memory, start + i) for i in range(size))
 
 
-__all__ = ["Atmega162", "FACTORY_FUSES", "MEMORY_SIZES", "Stk500Programmer", "format_ihex",
+__all__ = ["Atmega162", "EmptySocket", "FACTORY_FUSES", "MEMORY_SIZES", "Stk500Programmer", "format_ihex",
            "fuses_of", "fuses_text", "parse_ihex", "read_ihex"]

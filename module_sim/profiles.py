@@ -24,12 +24,16 @@ class Profile:
     addressing: bool
     #: The control board reports its solenoid and magnet bits on the debug UART (``ACT``).
     actuator_report: bool = False
+    #: Both boards read a frame's closing '#' and drop a frame cut by a silence
+    #: (``FRAME_BYTE_TICKS``); the comm board takes only the echo of the code it relayed.
+    checked_frames: bool = False
 
 
 THESIS_2009 = Profile("thesis-2009", sccw_both_negative=True, boot_assumes_yref=True,
                       fixed_side_localize=True, addressing=False)
 V2 = Profile("v2", sccw_both_negative=False, boot_assumes_yref=False,
-             fixed_side_localize=False, addressing=True, actuator_report=True)
+             fixed_side_localize=False, addressing=True, actuator_report=True,
+             checked_frames=True)
 PROFILES = {p.name: p for p in (THESIS_2009, V2)}
 
 

@@ -25,7 +25,7 @@ from .planners import thesis
 from .bringup import BringUp, BringUpError, Fleetview
 from .endpoint import PcEndpoint
 from .executor import THESIS_TIMING, Executor, GroundTruth, MoveFailed, PortWatch
-from .planners.plan import Plan, PlanError, Problem, validate
+from .planners.plan import Plan, PlanError, Problem, check_reach, validate
 from .planners.rules import Move
 from .script import ScriptError, run_script
 
@@ -62,8 +62,11 @@ class PlannerService:
 
     def __init__(self, bus: Bus, scenario: Scenario, planner: str, *,
                  timing: tuple[int, int, int] = THESIS_TIMING,
-                 say: Callable[[str], None] = print) -> None:
+                 say: Callable[[str], None] = print, plan: Plan | None = None) -> None:
+        """``plan``: made from the scenario before the fleet booted (``hexbench run`` checks it
+        then); used when the localized configuration is the scenario's."""
         self.bus = bus
+        self.early_plan = plan
         self.scenario = scenario
         self.planner_name = planner
         self.say = say
@@ -164,8 +167,10 @@ class PlannerService:
         problem = Problem.of(initial, self.scenario.goal, self.scenario.fixed,
                              self.scenario.obstacles, self.scenario.name)
         self.say(f"planning: {self.planner_name} on {len(initial)} modules ...")
-        plan: Plan = planner.plan(problem)
+        early = self.early_plan
+        plan: Plan = early if early is not None and early.problem == problem else planner.plan(problem)
         validate(plan)
+        check_reach(plan, self.scenario.reach)
         result.planning_s, result.planned_moves = plan.seconds, plan.moves
         result.energy_estimate_j = plan.energy_joules
         result.notes = list(plan.notes)

@@ -93,7 +93,10 @@ enum { PT_WAITING = 0, PT_DONE = 1 };
          (dst) = board_rx_ready(uart) ? board_rx_read(uart) : ACK_TIMEOUT; } while (0)
 /* The same, telling a timeout apart from a received byte (v2): `timed_out` is 1 or 0. */
 #define RX_TL2(pt, uart, ticks, dst, timed_out) \
-    do { (pt)->t0 = (uint16_t)(board_ticks() + (ticks)); \
+    RX_UNTIL(pt, uart, (uint16_t)(board_ticks() + (ticks)), dst, timed_out)
+/* The same with a deadline: the overflow that makes board_ticks() == target. */
+#define RX_UNTIL(pt, uart, target, dst, timed_out) \
+    do { (pt)->t0 = (target); \
          PT_WAIT_UNTIL(pt, board_rx_ready(uart) || board_tick_reached((pt)->t0)); \
          (timed_out) = !board_rx_ready(uart); \
          (dst) = (timed_out) ? ACK_TIMEOUT : board_rx_read(uart); } while (0)
@@ -130,5 +133,15 @@ typedef struct {
 const int8_t *rotation_steps(uint8_t code); /* code 21..24 or 56..59 */
 uint8_t co_rotation(rotation_t *r, const int8_t *steps, uint8_t i, const uint8_t t[3],
                     rotation_action act);
+#if HEXBOT_V2
+/* Two substrate programs at once (STwo, LSTwo; bus.rotations.perform_together): bit k of
+ * dirs = program k is SCW (else SCCW), about i[k]; each phase runs both, then waits. */
+typedef struct {
+    pt_t pt;
+    uint8_t phase, at[2];
+} rotation_two_t;
+uint8_t co_rotation_two(rotation_two_t *r, uint8_t dirs, const uint8_t i[2], const uint8_t t[3],
+                        rotation_action act);
+#endif
 
 #endif

@@ -134,6 +134,26 @@ static uint8_t co_selftest(uint8_t switches)
 #endif
 
 static rotation_t rotation;
+#if HEXBOT_V2
+static rotation_two_t rotation_two;
+static const uint8_t WALTER_T[3] = WALTER_ROTATION_TICKS;
+
+/* WalterLog(round, flags, position, delay): the round's line, "WLK" and the four bytes. */
+static pt_t pt_wlk;
+static uint8_t wlk_line[9];
+
+static uint8_t co_walter_log(const uint8_t *a)
+{
+    pt_t *pt = &pt_wlk;
+    PT_BEGIN(pt);
+    wlk_line[0] = TXT_WLK[0], wlk_line[1] = TXT_WLK[1], wlk_line[2] = TXT_WLK[2];
+    for (uint8_t j = 0; j < 4; j++)
+        wlk_line[3 + j] = a[j];
+    wlk_line[7] = TXT_EOL[0], wlk_line[8] = TXT_EOL[1];
+    TX(pt, UART1, wlk_line, 9);
+    PT_END(pt);
+}
+#endif
 
 /* Run code with its arguments; PT_DONE when finished (at once for the instant ones). */
 static uint8_t execute(uint8_t code, const uint8_t *a)
@@ -153,6 +173,8 @@ static uint8_t execute(uint8_t code, const uint8_t *a)
         return co_rotation(&rotation, rotation_steps(code), a[0], &a[1], rotation_act);
 #if HEXBOT_V2
     case FC_SelfTest: return co_selftest(a[0]);
+    case FC_WalterLog: return co_walter_log(a);
+    case FC_STwo: return co_rotation_two(&rotation_two, a[0], &a[1], WALTER_T, rotation_act);
 #endif
     default: return PT_DONE; /* the thesis's if-chain matches nothing */
     }
@@ -160,6 +182,9 @@ static uint8_t execute(uint8_t code, const uint8_t *a)
 
 static pt_t pt_main;
 static uint8_t byte, msg[5], k;
+#if HEXBOT_V2
+static uint8_t timed_out;
+#endif
 static uint8_t line[10]; /* "ACK" c EOL, or "MSG" 5 bytes EOL */
 
 static uint8_t co_main(void)
@@ -195,8 +220,18 @@ static uint8_t co_main(void)
             RX(pt, UART0, byte);
         } while (byte != BYTE_START);
         for (k = 0; k < 5; k++) {
+#if HEXBOT_V2
+            /* each within FRAME_BYTE_TICKS: after a long command the remains of a frame that
+             * overran the input end in a silence and are dropped, not read as the next one */
+            RX_TL2(pt, UART0, FRAME_BYTE_TICKS, msg[k], timed_out);
+            if (timed_out)
+                break;
+#else
             RX(pt, UART0, msg[k]);
+#endif
         }
+        if (k < 5)
+            continue;
         TX(pt, UART0, msg, 1); /* confirm to the comm board: echo the code */
         TX_P(pt, UART1, S_PREAMBLE);
         line[0] = TXT_ACK[0], line[1] = TXT_ACK[1], line[2] = TXT_ACK[2], line[3] = msg[0];
@@ -207,6 +242,11 @@ static uint8_t co_main(void)
             line[3 + k] = msg[k];
         line[8] = TXT_EOL[0], line[9] = TXT_EOL[1];
         TX(pt, UART1, line, 10);
+#if HEXBOT_V2
+        RX_TL2(pt, UART0, FRAME_BYTE_TICKS, byte, timed_out);
+        if (timed_out || byte != BYTE_END)
+            continue; /* not a whole frame: echoed, but not run */
+#endif
         PT_CALL(pt, execute(msg[0], &msg[1]));
     }
     PT_END(pt);

@@ -31,6 +31,7 @@ import subprocess
 import threading
 import weakref
 from pathlib import Path
+from time import perf_counter_ns
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -38,7 +39,7 @@ import numpy as np
 from bus.cheader import FirmwareError, build_path
 from bus.codec import Link
 from bus.framer import Framer, patterns
-from bus.ir import burst_tail, one_byte_burst
+from bus.ir import burst_light, burst_tail, one_byte_burst
 from bus.keys import PC, WORLD, module_endpoint
 from bus.pins import IR_SEL_A, PORTS, ir_selected
 from bus.transport import Bus
@@ -60,6 +61,9 @@ _OUT_TX, _OUT_PORTS, _OUT_RX, _OUT_OVERRUN, _OUT_COLLISION = 1, 2, 3, 4, 5
 _OUT = np.dtype([("t", "<u8"), ("aux", "<u8"), ("kind", "<u4"), ("m", "<u4"), ("a", "<i4"),
                  ("b", "<i4"), ("n", "<i4"), ("off", "<u4"), ("off2", "<u4"), ("n2", "<u4")])
 _lock = threading.Lock()
+#: core_put_light's answers (core.c LIGHT_*)
+_LIGHT_REFUSED = {1: "its start times or corrupt flags do not match its bytes", 2: "unknown source",
+                  3: "unknown receiver", 4: "a zero byte time", 5: "a byte ends past the clock's range"}
 
 
 def _library() -> ctypes.CDLL:
@@ -103,7 +107,8 @@ def _library() -> ctypes.CDLL:
     lib.core_power_up.argtypes = [p, u32, u64, u32, u32, p]
     lib.core_set_grammar.argtypes = [p, u32, u32, p, ctypes.c_char_p, p, p]
     lib.core_frame_receiver.argtypes = [p, i32, u32, u32, p]
-    lib.core_put_light.argtypes = [p, u64, i32, u32, p, p, p, u32, u32, p]
+    lib.core_put_light.restype = i32
+    lib.core_put_light.argtypes = [p, u64, i32, u32, p, p, u32, p, u32, u32, p, u32]
     lib.core_next.restype = u64
     lib.core_next.argtypes = [p]
     lib.core_run.restype = u64
@@ -199,6 +204,7 @@ class FleetCore:
         self._batches: dict[Bus, list[tuple[str, bytes]]] = {}  # the window's samples, per bus
         self._burst = itertools.count()  # burst numbers of what goes out on ir/rx
         self.windows = 0
+        self.run_ns = 0  # wall time inside core_run (the rest of a window is Python's)
         # The PC's receivers: a framer like the PC's own follows their bytes, so the core
         # stops a window only at a byte on which the PC's framer can act (core.c quiet_byte)
         pats, first = patterns(Link.CENTRE)
@@ -294,7 +300,9 @@ class FleetCore:
 
     def put_light(self, world: "World", d: dict[str, Any], receivers: list[tuple[str, int]]) -> None:
         """A burst from outside the core (an ``ir/tx`` sample of ``world``'s fleet) reaches
-        ``receivers``."""
+        ``receivers``. A malformed one (:func:`bus.ir.burst_light`) raises ValueError before
+        it touches the core: from another process, a ``bad-sample`` event."""
+        data, starts_list, byte_ns, corrupt = burst_light(d)
         fleet = self._fleets[id(world)]
         key = (d["src"], d["transceiver"])
         cached = fleet.light.get(key)
@@ -304,12 +312,13 @@ class FleetCore:
         idx = cached[1]
         if not len(idx):
             return
-        data = bytes.fromhex(d["data"])
-        starts = np.array(d["starts"], dtype=np.uint64)
-        corrupt = d.get("corrupt") or []
-        flags = bytes(1 if c else 0 for c in corrupt) if True in corrupt else None
-        self.lib.core_put_light(self._h, self.clock.now_ns(), self._source(fleet, d["src"]), len(idx),
-                                idx.ctypes.data, data, starts.ctypes.data, len(data), d["byte_ns"], flags)
+        starts = np.array(starts_list, dtype=np.uint64)
+        flags = bytes(corrupt) if True in corrupt else None
+        refused = self.lib.core_put_light(self._h, self.clock.now_ns(), self._source(fleet, d["src"]), len(idx),
+                                          idx.ctypes.data, data, len(data), starts.ctypes.data, len(starts),
+                                          byte_ns, flags, len(flags or b""))
+        if refused:  # what burst_light checks, checked again where the bytes are read
+            raise ValueError(f"the fleet core refused a burst from {d['src']}: {_LIGHT_REFUSED.get(refused, refused)}")
         self._after_call()
 
     def queue_frame(self, bus: Bus, t_last: int, frame: Any, src: str, dst: str, first: int,
@@ -350,9 +359,13 @@ class FleetCore:
         nxt = clock.next_due_ns()
         if nxt is not None and nxt < limit:
             limit = nxt
+        if clock.inbox_waiting():  # samples of this instant (light for the core?) come in first
+            limit = now + 1
         if clock.until_ns is not None and clock.until_ns + 1 < limit:
             limit = clock.until_ns + 1
+        t0 = perf_counter_ns()
         reached = self.lib.core_run(self._h, max(limit, now + 1))
+        self.run_ns += perf_counter_ns() - t0
         self.windows += 1
         if reached > now:
             clock.advance_to(reached)

@@ -37,6 +37,8 @@
 enum { EV_WAKE = 1, EV_RX0, EV_IRDONE };
 /* OUT_PORTS: a module's ten port bytes (control A..E, comm A..E) after an instant's writes */
 enum { OUT_TX = 1, OUT_PORTS, OUT_RX, OUT_OVERRUN, OUT_COLLISION };
+/* why core_put_light refused a burst (0: it did not) */
+enum { LIGHT_LENGTHS = 1, LIGHT_SOURCE, LIGHT_RECEIVER, LIGHT_BYTE_TIME, LIGHT_START };
 /* wires of a module in OUT_TX: 0 UART0 up (ctrl->comm), 1 down, 2 debug, 3+k IR transceiver k */
 enum { W_UP = 0, W_DOWN = 1, W_DEBUG = 2, W_IR = 3 };
 
@@ -54,6 +56,7 @@ typedef struct {
     hexbot_io_t *io;
     hexbot_flush_fn *flush;
     uint8_t *power_on;
+    const uint8_t *pullups; /* the program's program_pullups: its ports at power-up */
 } prog_t;
 
 typedef struct {
@@ -151,6 +154,8 @@ typedef struct {
     uint32_t bytes_n, bytes_cap;
     int32_t *out_srcs;
     uint32_t srcs_n, srcs_cap;
+    uint8_t *scratch; /* medium_add's values and corrupt flags of a burst (any length) */
+    uint32_t scratch_n, scratch_cap;
     int stop;
     int stepping; /* the board whose step runs (hexbot_flush) */
     /* the framer grammar of framed receivers (core_set_grammar): patterns, -1 a free byte */
@@ -334,9 +339,10 @@ static void medium_add(core_t *c, int32_t ri, int32_t src, const uint8_t *data, 
                        uint32_t n, uint32_t byte_ns, const uint8_t *corrupt_in)
 {
     receiver_t *r = &c->rcv[ri];
-    uint8_t values[256], corrupt[256];
-    if (n > 256)
-        n = 256; /* a board's step writes at most 255 bytes a burst (hexbot_event_t.n) */
+    /* a burst is carried whole: light from outside the core may be longer than a board's */
+    c->scratch_n = 0;
+    GROW(c->scratch, c->scratch_n, c->scratch_cap, 2 * n);
+    uint8_t *values = c->scratch, *corrupt = c->scratch + n;
     int any_hit = 0;
     uint32_t first_src_off = c->srcs_n;
     c->mark++;
@@ -667,7 +673,8 @@ static int load(core_t *c, int k, const char *path, const uint8_t *power_on)
     p->set_pins = (void (*)(void *, const uint8_t *))dlsym(p->lib, "hexbot_set_pins");
     p->io = (hexbot_io_t *)dlsym(p->lib, "hexbot_io");
     p->flush = (hexbot_flush_fn *)dlsym(p->lib, "hexbot_flush");
-    if (!size || !p->step || !p->setup || !p->set_pins || !p->io || !p->flush) {
+    p->pullups = (const uint8_t *)dlsym(p->lib, "program_pullups");
+    if (!size || !p->step || !p->setup || !p->set_pins || !p->io || !p->flush || !p->pullups) {
         snprintf(c->error, sizeof c->error, "%s is not a hexbot host library (make -C firmware host)", path);
         return -1;
     }
@@ -852,6 +859,7 @@ void core_free(core_t *c)
     free(c->out_bytes);
     free(c->out_starts);
     free(c->out_srcs);
+    free(c->scratch);
     free(c->boards);
     free(c->state[0]);
     free(c->state[1]);
@@ -885,19 +893,39 @@ void core_power_up(core_t *c, uint32_t b, uint64_t t, uint32_t byte_ns0, uint32_
     bd->on = 1;
     bd->byte_ns[0] = byte_ns0;
     bd->byte_ns[1] = byte_ns1;
+    /* hexbot_setup sets the board's ports to its pull-ups without an event: the records start
+     * from them, as the Mcu's ports do (control_board/comm_board: board_init's pull-ups) */
+    memcpy(bd->port, p->pullups, sizeof bd->port);
     p->setup(state, t, byte_ns0, byte_ns1);
     p->set_pins(state, pins);
     step_board(c, b);
 }
 
 /* Light from outside the core (the PC, a twin, a Python-program module) reaching `n_rcv`
- * receivers, written now (`t`). */
-void core_put_light(core_t *c, uint64_t t, int32_t src, uint32_t n_rcv, const int32_t *rcv, const uint8_t *data,
-                    const uint64_t *starts, uint32_t n, uint32_t byte_ns, const uint8_t *corrupt)
+ * receivers, written now (`t`): n bytes, n_starts start times, n_corrupt flags (0: none).
+ * A sample from elsewhere may be anything: lengths that disagree, a receiver or source the
+ * core does not have, a zero byte time or a start whose byte would end past the clock's
+ * range change nothing and return which (module_sim.core says it in a bad-sample event). */
+int32_t core_put_light(core_t *c, uint64_t t, int32_t src, uint32_t n_rcv, const int32_t *rcv,
+                       const uint8_t *data, uint32_t n, const uint64_t *starts, uint32_t n_starts,
+                       uint32_t byte_ns, const uint8_t *corrupt, uint32_t n_corrupt)
 {
+    if (n_starts != n || (corrupt && n_corrupt != n))
+        return LIGHT_LENGTHS;
+    if (src < EXT_SRC || src - EXT_SRC >= (int32_t)c->n_ext_srcs)
+        return LIGHT_SOURCE;
+    for (uint32_t i = 0; i < n_rcv; i++)
+        if (rcv[i] < 0 || (uint32_t)rcv[i] >= c->n_receivers)
+            return LIGHT_RECEIVER;
+    if (!byte_ns)
+        return LIGHT_BYTE_TIME;
+    for (uint32_t i = 0; i < n; i++)
+        if (starts[i] > NO_TIME - 1 - byte_ns)
+            return LIGHT_START;
     c->now = t;
     for (uint32_t i = 0; i < n_rcv; i++)
         medium_add(c, rcv[i], src, data, starts, n, byte_ns, corrupt);
+    return 0;
 }
 
 uint64_t core_next(core_t *c)

@@ -103,6 +103,16 @@ class Plan:
                 f"energy {self.energy_joules:.1f} J (estimate, {JOULES_PER_MOVE} J/move)")
 
 
+def check_reach(plan: Plan, reach) -> None:  # reach: bus.scenario.Reach
+    """Raise :class:`PlanError` at the first move to a cell the protocol cannot name relative
+    to the reference (a module there could not be told its cell, nor report it)."""
+    for n, step in enumerate(plan.steps, 1):
+        for mv in step:
+            if why := reach.beyond(mv.goal):
+                raise PlanError(f"the plan leaves what the protocol can name at step {n}, "
+                                f"{mv.mobile} -> {mv.goal}: {why}")
+
+
 def validate(plan: Plan | Sequence[Sequence[Move]], initial: Iterable[Cell | Coord] | None = None,
              goal: Iterable[Cell | Coord] | None = None, fixed: Cell | Coord | None = None,
              obstacles: Iterable[Cell | Coord] = ()) -> frozenset[Cell]:

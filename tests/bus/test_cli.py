@@ -102,3 +102,9 @@ def test_version(capsys):
         main(["--version"])
     assert exit_.value.code == 0
     assert capsys.readouterr().out.strip() == f"hexbench {version('hexbench')}"
+
+
+def test_encode_refuses_a_value_equal_to_the_filler(capsys):
+    """`Move 0 ...` was encoded because 0 is the PC frame's filler (issue 50, item 5)."""
+    assert main(["encode", "Move", "0", "1", "1", "2", "1", "8", "4", "9"]) == 2
+    assert capsys.readouterr().err.strip().endswith("dir=0: expected 1..2")

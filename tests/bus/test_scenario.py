@@ -49,7 +49,7 @@ def test_matrix_and_list_forms_agree():
     ('initial_matrix = ["1 2"]', "key 'initial_matrix': expected a thesis 0/1 matrix"),
     ('initial = [[0, 0]]\nfixed = [5, 5]', "key 'fixed': expected the cell of one of the modules"),
     ('name = "x"', "no modules"),
-    ('initial = [[0, 0], [99999999999, 0]]', "coordinates within -99..99"),
+    ('initial = [[0, 0], [99999999999, 0]]', "the fleet is not one connected structure"),
     ('initial = [[0, 0], [1, 0], [5, 5]]', "the fleet is not one connected structure: [5, 5]"),
     ('initial = [[0, 0], [1, 0]]\ngoal = [[0, 0], [3, 0]]', "the goal is not one connected structure"),
 ])

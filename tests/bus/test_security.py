@@ -4,7 +4,6 @@ the test with openssl; everything listens on loopback only."""
 
 from __future__ import annotations
 
-import shutil
 import subprocess
 
 import pytest
@@ -14,8 +13,9 @@ from bus.session import ConnectError
 from bus.transport import Bus
 from hexbench.cli import main
 from processes import free_port
+from toolchain import needs_tools
 
-pytestmark = pytest.mark.skipif(shutil.which("openssl") is None, reason="needs openssl")
+pytestmark = needs_tools("openssl")
 
 
 def _openssl(d, *args: str) -> None:

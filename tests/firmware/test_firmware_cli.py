@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from toolchain import needs_avr
+from toolchain import module, needs_avr
 
 pytestmark = needs_avr
 
@@ -35,7 +35,7 @@ def test_firmware_build_exits_0_and_prints_the_sizes():
 def test_firmware_run_answers_on_its_ptys_and_stops_after_seconds(tmp_path):
     """``--module 3 --seconds 3``: the control board's boot banner on the debug pty, then the
     command ends by itself, its pty links gone."""
-    serial = pytest.importorskip("serial")
+    serial = module("serial")
     ir, debug = tmp_path / "m3", tmp_path / "m3d"
     start = time.monotonic()
     proc = subprocess.Popen([sys.executable, "-m", "hexbench", "firmware", "run", "--module", "3",

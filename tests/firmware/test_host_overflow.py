@@ -16,9 +16,9 @@ from bus.cheader import FirmwareError
 from bus.clock import VirtualClock
 from module_sim.avr import Mcu, Uart
 from module_sim.firmware import FirmwareDriver, Program
+from toolchain import needs_tools
 
-pytestmark = pytest.mark.skipif(shutil.which("cc") is None or shutil.which("objcopy") is None,
-                                reason="needs a host C compiler and binutils")
+pytestmark = needs_tools("cc", "objcopy")
 
 FIRMWARE = Path(__file__).resolve().parents[2] / "firmware"
 PORT_WRITES, BURSTS, BURST = 600, 6, 250  # > 256 events, > 1024 bytes

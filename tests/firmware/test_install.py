@@ -14,10 +14,11 @@ from pathlib import Path
 import pytest
 
 from golden import GOLDEN_THESIS_12_FRAMES, frames_digest
+from toolchain import needs_tools
 
 ROOT = Path(__file__).resolve().parents[2]
 
-pytestmark = pytest.mark.skipif(shutil.which("cc") is None, reason="needs a C compiler")
+pytestmark = needs_tools("cc")
 
 
 @pytest.fixture(scope="module")

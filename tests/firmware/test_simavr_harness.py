@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from bus import pins
+from toolchain import missing, module
 
 ROOT = Path(__file__).resolve().parents[2]
 SRC = ROOT / "firmware" / "simavr"
@@ -44,7 +45,7 @@ def _why_not() -> str | None:
 def elf() -> Path:
     why = _why_not()
     if why:
-        pytest.skip(why)
+        missing(why)
     r = subprocess.run(["make", "-C", str(SRC), "selftest"], capture_output=True, text=True)
     assert r.returncode == 0, r.stdout + r.stderr
     return SELFTEST
@@ -80,7 +81,7 @@ def _events(log: Path) -> list[tuple[int, str, tuple[str, ...]]]:
 def test_builds_without_warnings(tmp_path) -> None:
     why = _why_not()
     if why:
-        pytest.skip(why)
+        missing(why)
     r = subprocess.run(["make", "-B", "-C", str(SRC), f"SIMAVR_OUT={tmp_path}", "selftest"],
                        capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
@@ -89,7 +90,7 @@ def test_builds_without_warnings(tmp_path) -> None:
 
 
 def test_real_time_echo_over_the_ir_and_debug_ptys(elf, tmp_path) -> None:
-    serial = pytest.importorskip("serial")
+    serial = module("serial")
     ir_link, debug_link = tmp_path / "ir", tmp_path / "debug"
     debug_link.symlink_to("/nonexistent")  # a stale link from a run that died is replaced
     proc = subprocess.Popen([str(HARNESS), "--comm", str(elf), "--control", str(elf),

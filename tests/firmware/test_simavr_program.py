@@ -15,7 +15,8 @@ from pathlib import Path
 
 import pytest
 
-from bus.timing import TICK_NS
+from bus.cheader import F_CPU, ubrr
+from bus.timing import BITS_PER_BYTE, NS_PER_S, TICK_NS, Baud, byte_time_ns
 from hexbench.cli import main
 from recordings.reader import read_frames
 from toolchain import needs_avr
@@ -26,15 +27,54 @@ pytestmark = needs_avr
 #: The chip runs at its UBRR-exact baud rates (300.48, 4807.7), the host build at the nominal
 #: ones: a 17-byte line ends about 1 ms earlier, plus the relays over UART0 (docs/firmware.md).
 BAUD_DRIFT_NS = 3_000_000
+NS_PER_CYCLE = NS_PER_S // F_CPU
+#: Each wire's baud rate: the IR links at 300, UART0 and the debug UART1 at 4800.
+LINK_BAUD = {"centre": Baud.IR, "side": Baud.IR, "uart0-down": Baud.UART0, "uart0-up": Baud.UART0,
+             "debug": Baud.UART0}
 
 
 def _run(tmp_path, name: str, *args: str, scenario: str = "pair", planner: str = "complete",
          code: int = 0) -> list:
+    """The run's frames: (end, link, src, dst, raw, kind, channel, start), by time."""
     path = tmp_path / f"{name}.mcap"
     assert main(["run", scenario, "--planner", planner, "--clock", "virtual", "--isolated",
                  "--record", str(path), *args]) == code
-    return sorted((e.sim_time_ns, e.link, e.src, e.dst, e.raw, e.kind, e.channel)
+    return sorted((e.sim_time_ns, e.link, e.src, e.dst, e.raw, e.kind, e.channel, e.first_byte_ns)
                   for e in read_frames(path))
+
+
+def _power_ups(host: list) -> dict[str, int]:
+    """Each module's power-up instant: the host build sends its banner then (the fleet's
+    seeded phase, the same in every run of the scenario)."""
+    out: dict[str, int] = {}
+    for f in host:
+        if f[1] == "centre":
+            out.setdefault(f[2].split(".")[0], f[7])
+    return out
+
+
+def _assert_the_chip_sent(frames: list, power_up: dict[str, int]) -> int:
+    """What only the images on the chip do, for every frame a board sent; how many frames.
+
+    * UBRR-exact bytes: each byte takes 10 x 16 x (UBRR + 1) cycles (33.28 ms on IR, 2.08 ms on
+      UART0 and UART1), so n bytes last at least n of them and, back to back within a few
+      cycles, less than n nominal bytes (the host build's 33.33 ms and 2.083 ms exactly).
+    * The 1 MHz cycle grid: every start and end a whole number of cycles after power-up.
+    * The tick grid: Timer0 starts in .init3 and the code between a tick and the write to UDR
+      takes cycles, so no frame starts on the host build's grid (power-up + k ticks), where
+      every frame the host build starts after a wait does."""
+    sent = 0
+    for end, link, src, _dst, raw, _kind, _channel, start in frames:
+        if src == "pc":
+            continue
+        baud, n = LINK_BAUD[link], len(raw)
+        chip_byte = BITS_PER_BYTE * 16 * (ubrr(baud) + 1) * NS_PER_CYCLE
+        assert n * chip_byte <= end - start < n * byte_time_ns(baud), (link, src, raw, start, end)
+        since = start - power_up[src.split(".")[0]]
+        assert since % NS_PER_CYCLE == 0 and (end - start) % NS_PER_CYCLE == 0, (link, src, raw, start)
+        assert since % TICK_NS != 0, (link, src, raw, start)
+        sent += 1
+    return sent
 
 
 @pytest.fixture(scope="module")
@@ -53,29 +93,36 @@ def test_the_centre_channel_carries_the_host_firmwares_bytes(tmp_path, simavr_pa
     """The same frames as --program firmware on every wire, in order; on the centre channel
     each module's answer comes within a tick (plus the baud drift) of where the host build
     puts it after the PC's frame before it. The planner answers each frame as it arrives, so
-    absolute times carry the differences of the exchanges before."""
+    absolute times carry the differences of the exchanges before. And every one of them was
+    sent by the chip (:func:`_assert_the_chip_sent`), which the host build fails."""
     host = _run(tmp_path, "firmware", "--program", "firmware")
     assert "complete: goal reached" in capsys.readouterr().out
     assert _wires(simavr_pair) == _wires(host)
     centre = [[f for f in run if f[1] in ("centre", "pc")] for run in (host, simavr_pair)]
-    assert _answers_within_a_tick(*centre) >= 10
+    assert _within_a_tick(*centre)[1] >= 10
+    power_up = _power_ups(host)
+    assert _assert_the_chip_sent(simavr_pair, power_up) == sum(f[2] != "pc" for f in host)
+    with pytest.raises(AssertionError):  # the check tells the host build from the chip
+        _assert_the_chip_sent(host, power_up)
 
 
-def _answers_within_a_tick(host: list, sim: list) -> int:
+def _within_a_tick(host: list, sim: list) -> tuple[int, int]:
     """``host`` and ``sim``: frames of the PC and of modules on the centre channel. The same
     senders and bytes in the same order, and each module frame within a tick (plus the baud
     drift) of the host build's, measured from the PC frame before it (from power-up before
-    the first). Returns how many module frames came after a PC frame."""
+    the first). Returns how many module frames were compared, and how many of them came
+    after a PC frame (answers)."""
     assert [(f[2], f[4]) for f in host] == [(f[2], f[4]) for f in sim]
-    last_pc, answers = None, 0
+    last_pc, compared, answers = None, 0, 0
     for i, (a, b) in enumerate(zip(host, sim)):
         if a[1] == "pc":
             last_pc = i
             continue
         t0 = (host[last_pc][0], sim[last_pc][0]) if last_pc is not None else (0, 0)
         assert abs((b[0] - t0[1]) - (a[0] - t0[0])) < TICK_NS + BAUD_DRIFT_NS, (i, a, b)
+        compared += 1
         answers += last_pc is not None
-    return answers
+    return compared, answers
 
 
 def test_two_runs_give_the_same_frames_at_the_same_times(tmp_path, simavr_pair):
@@ -102,7 +149,7 @@ def test_two_shards_give_the_one_process_frames(tmp_path, simavr_pair):
                        cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
     assert "complete: goal reached" in r.stdout
-    got = sorted((e.sim_time_ns, e.link, e.src, e.dst, e.raw, e.kind, e.channel)
+    got = sorted((e.sim_time_ns, e.link, e.src, e.dst, e.raw, e.kind, e.channel, e.first_byte_ns)
                  for e in read_frames(out))
     assert got == simavr_pair
 
@@ -176,5 +223,9 @@ def test_thesis_6_in_thesis_2009_gives_the_host_firmwares_frames(tmp_path, capsy
     for m in sorted(modules):
         a, b = ([f for f in run if f[1] == "pc" or (f[1], f[2]) == ("centre", m)]
                 for run in (host, sim))
-        answers += _answers_within_a_tick(a, b)
-    assert answers >= (24 if code == 0 else 0)
+        compared, answered = _within_a_tick(a, b)
+        assert compared >= 1  # its boot banner at least
+        answers += answered
+    if code == 0:  # the script's four frames, every module answering (the thesis planner
+        assert answers >= 24  # refuses before the PC sends a frame: only the boot's compared)
+    _assert_the_chip_sent(sim, _power_ups(host))

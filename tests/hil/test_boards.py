@@ -63,7 +63,7 @@ def test_boards_names_each_board_on_its_port(desk, monkeypatch, capsys):
     monkeypatch.setattr("serial.tools.list_ports.comports", lambda *a, **k: [info])
     monkeypatch.setattr(boards, "BY_ID", by_id)
 
-    code = main(["boards", "--json", m126.path, thesis.path, empty.path])
+    code = main(["boards", "--json", "--scan", m126.path, thesis.path, empty.path])
     rows = {r["port"]: r for r in json.loads(capsys.readouterr().out)}
     assert code == 0
     assert list(rows) == [device, m126.path, thesis.path, empty.path]
@@ -96,7 +96,7 @@ def test_boards_table_and_exit_statuses(desk):
     """The table as a person reads it (the command line, ports given only); exit 1 when nobody
     answers, 2 for a URL pyserial does not know."""
     m7, thesis, empty = desk["v2-7"], desk["thesis"], desk["empty"]
-    cmd = [sys.executable, "-m", "hexbench", "boards", "--no-scan"]
+    cmd = [sys.executable, "-m", "hexbench", "boards"]
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     out = subprocess.run(cmd + [m7.path, thesis.path, empty.path], cwd=ROOT, env=env,
                          capture_output=True, text=True, timeout=60)
@@ -118,6 +118,30 @@ def test_boards_table_and_exit_statuses(desk):
     out = subprocess.run(cmd + ["nosuch://x"], cwd=ROOT, env=env, capture_output=True, text=True,
                          timeout=60)
     assert out.returncode == 2 and "protocol 'nosuch' not known" in out.stderr, out
+
+
+def test_boards_asks_only_the_ports_given(tmp_path, monkeypatch, capsys):
+    """`hexbench boards PORT` asked every adapter list_ports found as well (a /dev/ttyS0 the owner
+    did not name, which may drive something else): only the ports given are opened now; an
+    adapter given by its by-id link is still described by what list_ports knows of it."""
+    given, other = Pty(tmp_path / "given"), Pty(tmp_path / "not-given")
+    try:
+        infos = []
+        for pty, serial_number in ((given, "HX0001"), (other, "HX0002")):
+            info = ListPortInfo(os.path.realpath(pty.path), skip_link_detection=True)
+            info.serial_number = serial_number
+            infos.append(info)
+        monkeypatch.setattr("serial.tools.list_ports.comports", lambda *a, **k: infos)
+        monkeypatch.setattr(boards, "SETTLE_S", 0.1)
+
+        assert main(["boards", "--json", "--timeout", "0.2", given.path]) == 1  # nobody answers
+        rows = json.loads(capsys.readouterr().out)
+        assert [(r["port"], r["usb_serial"]) for r in rows] == [(given.path, "HX0001")]
+        assert given.read(64) == encode_command(F.Report)  # asked ...
+        assert other.read(64) == b""  # ... and the adapter not given was never written to
+    finally:
+        given.close()
+        other.close()
 
 
 # -- what the answers mean (frames, no ports) -------------------------------------------------------

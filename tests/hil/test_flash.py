@@ -10,7 +10,7 @@ without avrdude and a programmer that does not answer each end in one line and e
 
 from __future__ import annotations
 
-import shutil
+import shlex
 import signal
 import subprocess
 import time
@@ -19,19 +19,18 @@ from typing import Iterator
 
 import pytest
 
-from bus.chip import FUSES, THESIS_FUSES, BoardKind, Fuses, board_record, read_board_record
+from bus.chip import FUSES, ISP_BITCLOCK_US, THESIS_FUSES, BoardKind, Fuses, board_record, read_board_record
 from hexbench.cli import main
 from hexbench.firmware import flash_image
-from hil.avrdude import BACKUP_MEMORIES
-from hil.isp import (EEPROM_SIZE, FLASH_SIZE, MEMORY_SIZES, OK, SCK_DURATION, Atmega162,
-                     Stk500Programmer, format_ihex, parse_ihex, read_ihex)
+from hil.avrdude import BACKUP_MEMORIES, STOP_S, Avrdude, run_deadline_s, used
+from hil.isp import (EEPROM_SIZE, FLASH_SIZE, MEMORY_SIZES, OK, PROG_PAGE, READ_PAGE, SCK_DURATION, UNIVERSAL,
+                     Atmega162, EmptySocket, Stk500Programmer, format_ihex, parse_ihex, read_ihex)
 from hil.pty import Pty
 from processes import hexbench
-from toolchain import needs_avr
+from toolchain import needs_avr, needs_tools
 
-#: ``pytestmark``-style marker for tests that run the real avrdude.
-needs_avrdude = pytest.mark.skipif(shutil.which("avrdude") is None,
-                                   reason="needs avrdude (.ci/system installs it)")
+#: For tests that run the real avrdude.
+needs_avrdude = needs_tools("avrdude")
 
 #: A silent programmer costs avrdude one read timeout (5 s) before hexbench stops it.
 SILENT_BOUND_S = 15.0
@@ -158,6 +157,143 @@ def test_a_programmer_that_does_not_answer_is_one_line_and_exit_2(tmp_path, caps
     assert len(err) == 1 and "does not answer" in err[0] and "nothing was written" in err[0], err
     assert took < SILENT_BOUND_S, f"took {took:.1f} s"
     assert list((tmp_path / "backups").iterdir()) == []  # a failed backup leaves no folder
+
+
+# -- a programmer that stops answering half-way ------------------------------------------------------
+class SilentFrom:
+    """A :attr:`Stk500Programmer.silent_from`: the programmer answers ``answered`` commands
+    that start with ``head``, and from the next one on nothing at all (it hung)."""
+
+    def __init__(self, head: bytes, answered: int = 0) -> None:
+        self.head, self.left = head, answered
+
+    def __call__(self, command: bytes) -> bool:
+        if command.startswith(self.head):
+            self.left -= 1
+        return self.left < 0
+
+
+#: The bound docs/firmware.md states for the whole command: each run's deadline, the runs of
+#: a flash of the comm image in turn, and the SIGTERM grace of the one that is stopped.
+def command_bound_s(board: str) -> float:
+    image = parse_ihex(flash_image(board, "v2").read_text(), FLASH_SIZE)
+    return (run_deadline_s(ISP_BITCLOCK_US, read=sum(MEMORY_SIZES[m] for m in BACKUP_MEMORIES))
+            + run_deadline_s(ISP_BITCLOCK_US, fuses=3)
+            + run_deadline_s(ISP_BITCLOCK_US, flash=used(image), eeprom=4) + STOP_S)
+
+
+@needs_avr
+@needs_avrdude
+@pytest.mark.slow
+@pytest.mark.parametrize("silence", [
+    SilentFrom(bytes((UNIVERSAL, 0xAC, 0xA8))),  # the high fuse write (0xD9 -> 0xD1)
+    SilentFrom(bytes((PROG_PAGE,))),  # after the chip erase, before any page
+    SilentFrom(bytes((PROG_PAGE,)), answered=10),  # ten pages written of 86 (issue 50)
+], ids=["at-the-fuses", "after-the-chip-erase", "after-ten-pages"])
+def test_a_programmer_that_stops_answering_while_writing_ends_in_bounded_time(
+        programmer, tmp_path, capsys, silence):
+    """avrdude retries a silent programmer byte by byte for minutes: each run's deadline stops
+    it, and the command ends with exit 1, the backup folder and the one line that restores it
+    (which, run on the replugged programmer, puts the board back as it was)."""
+    before = snapshot(programmer.chip)
+    programmer.silent_from = silence
+    started = time.monotonic()
+    assert flash("comm", programmer.path, tmp_path / "backups") == 1
+    took = time.monotonic() - started
+    assert programmer.silent
+    err = capsys.readouterr().err.splitlines()
+    folder = backup_folder(tmp_path / "backups")
+    assert len(err) == 1, err
+    assert "s deadline" in err[0] and "and was stopped: the programmer (-c stk500v1 -P " in err[0], err
+    assert f"stopped answering; the board may be half-written: its previous memories are in {folder}" in err[0]
+    assert took < command_bound_s("comm"), f"took {took:.1f} s"
+
+    restore = err[0].split("restore them with: ", 1)[1]
+    assert restore.startswith("avrdude ") and str(folder) in restore
+    chip = programmer.chip
+    programmer.close()  # unplugged and plugged back in: a programmer that answers
+    with Stk500Programmer.on_pty(tmp_path / "isp", chip):
+        r = subprocess.run(shlex.split(restore), capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert snapshot(chip) == before
+
+
+@needs_avrdude
+def test_a_programmer_that_stops_answering_while_backing_up_writes_nothing(programmer, tmp_path, capsys):
+    before = snapshot(programmer.chip)
+    programmer.silent_from = SilentFrom(bytes((READ_PAGE,)), answered=10)
+    started = time.monotonic()
+    assert flash("comm", programmer.path, tmp_path / "backups") == 2
+    took = time.monotonic() - started
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and "backup failed, nothing was written" in err[0] and "does not answer" in err[0], err
+    assert took < SILENT_BOUND_S, f"took {took:.1f} s"
+    assert snapshot(programmer.chip) == before and list((tmp_path / "backups").iterdir()) == []
+
+
+# -- lock bits -------------------------------------------------------------------------------------
+@needs_avr
+@needs_avrdude
+def test_the_backup_keeps_the_lock_bits_and_the_restore_puts_them_back(programmer, tmp_path, capsys):
+    """A write-protected 2009 board (lock mode 2: LB1 programmed, still readable): the backup
+    holds its lock byte; the chip takes no fuse before an erase, so it is erased first and its
+    EEPROM written back from the backup; the restore line locks it again, after the flash."""
+    chip = programmer.chip
+    chip.memories["lock"][0] = 0xFE
+    before = snapshot(chip)
+    assert flash("comm", programmer.path, tmp_path / "backups") == 0
+    out = capsys.readouterr().out
+    folder = backup_folder(tmp_path / "backups")
+    assert read_ihex(folder / "lock.hex", 1) == b"\xfe" and "lock 0xFE" in out
+    assert chip.lock == 0xFF and read_board_record(chip.eeprom) == BoardKind.COMM
+    assert chip.fuses == FUSES and chip.flash == parse_ihex(flash_image("comm", "v2").read_text(), FLASH_SIZE)
+    assert chip.eeprom[4:] == before["eeprom"][4:]  # erased with EESAVE off, written back
+    assert "the rest as backed up, 512 B verified" in out
+
+    restore = Avrdude("stk500v1", programmer.path).restore_command(folder)
+    r = subprocess.run(shlex.split(restore), capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert snapshot(chip) == before
+
+
+@needs_avrdude
+def test_a_chip_locked_against_reading_is_no_backup(programmer, tmp_path, capsys):
+    """Lock mode 3 (LB1 and LB2 programmed): flash and EEPROM read back as a pattern. That is
+    refused in one line, exit 2, no backup folder, nothing written."""
+    chip = programmer.chip
+    chip.memories["lock"][0] = 0xFC
+    before = snapshot(chip)
+    assert flash("comm", programmer.path, tmp_path / "backups") == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1, err
+    assert "the chip is locked (lock byte 0xFC: LB2 programmed)" in err[0] and "not a backup" in err[0]
+    assert "nothing was written" in err[0] and " -e" in err[0]
+    assert snapshot(chip) == before and chip.erases == 0
+    assert list((tmp_path / "backups").iterdir()) == []
+
+
+@needs_avrdude
+@pytest.mark.parametrize("level", [0x00, 0xFF])
+def test_a_chip_that_does_not_answer_is_not_called_a_wrong_chip(tmp_path, capsys, level):
+    """MISO held low or high reads as signature 0x000000 / 0xffffff: no chip answers (power,
+    cable, bit clock), which is not another part; avrdude's "(retrying)" stays out."""
+    with Stk500Programmer.on_pty(tmp_path / "isp", EmptySocket(level)) as p:
+        assert flash("comm", p.path, tmp_path / "backups") == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1, err
+    assert f"no chip answers the programmer (-c stk500v1; signature 0x{level:02x}{level:02x}{level:02x})" in err[0]
+    assert "power" in err[0] and "--bitclock" in err[0] and "nothing was written" in err[0]
+    assert "retrying" not in err[0] and "not an ATmega162" not in err[0]
+    assert list((tmp_path / "backups").iterdir()) == []
+
+
+@needs_avrdude
+def test_another_part_is_named_by_its_signature(programmer, tmp_path, capsys):
+    programmer.chip.signature = bytes((0x1E, 0x94, 0x03))  # an ATmega16 in the socket
+    assert flash("comm", programmer.path, tmp_path / "backups") == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and "the chip is not an ATmega162: its signature is 0x1e9403 (m16), not 0x1e9404" in err[0], err
+    assert programmer.chip.erases == 0
 
 
 def test_no_avrdude_is_one_line_and_exit_2(tmp_path, capsys, monkeypatch):

@@ -104,6 +104,7 @@ def test_thesis_profile_fleet_is_refused_with_the_reason(capsys):
 
 
 @pytest.mark.slow
+@pytest.mark.wall_clock
 def test_planner_in_another_process_reaches_the_goal(tmp_path):
     """Acceptance: ``hexbench fleet thesis-6 --clock wall`` in one process and ``hexbench
     planner thesis-6 --clock wall`` in another, over zenoh on loopback."""
@@ -142,6 +143,7 @@ def test_bring_up_says_where_it_is(capsys):
     assert main(["run", "pair", "--planner", "thesis-serial", "--clock", "virtual"]) == 0
     out = capsys.readouterr().out
     lines = [line for line in out.splitlines() if line.startswith("bring-up:")]
-    assert [line.split(":")[1].split()[0] for line in lines][:5] == ["boot", "2", "m1", "Localize",
+    assert [line.split(":")[1].split()[0] for line in lines][:5] == ["boot", "m1", "Localize", "2",
                                                                      "localized"]
-    assert "m1 is the reference at" in out and "Localize step 1: 2 of 2 modules localized at" in out
+    assert "m1 is the reference at" in out and "1 ring(s) around it" in out
+    assert "Localize step 1 of 1 done at" in out and "2 modules read back at" in out

@@ -11,6 +11,7 @@ import pytest
 from recordings.recorder import Recorder
 from recordings.stats import Tally
 from synthetic import Published, run_synthetic
+from toolchain import missing
 
 FLEET = "rectest"
 
@@ -43,7 +44,7 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> Recorded:
 def rerun_bin() -> str:
     exe = Path(sys.executable).with_name("rerun")
     if not exe.exists():
-        pytest.skip("rerun CLI not installed next to the interpreter")
+        missing("the rerun CLI next to the interpreter", "pip install -e . (rerun-sdk)")
     return str(exe)
 
 

@@ -29,10 +29,12 @@ def _run(scenario, core: bool, *, seed_commands: int = 4):
     frames: list[tuple] = []
     events: list[bytes] = []
     pc_light: list[bytes] = []
+    records: list[tuple[str, bytes]] = []  # actuator/LED/multiplexer records: key and payload
     bus.subscribe_frames(lambda e: frames.append((e.sim_time_ns, e.src, e.link, e.seq, e.channel,
                                                   e.first_byte_ns, e.raw)))
     bus.subscribe(bus.keys.event("world"), lambda k, p: events.append(p))
     bus.subscribe(bus.keys.ir_rx("pc"), lambda k, p: pc_light.append(p))
+    bus.subscribe(bus.keys.actuators_all, lambda k, p: records.append((bus.keys.relative(k), p)))
     try:
         fleet = Fleet(bus, scenario, core=core)
         assert (fleet.core is not None) == core
@@ -44,10 +46,17 @@ def _run(scenario, core: bool, *, seed_commands: int = 4):
             clock.run(until_ns=clock.now_ns() + 1_500_000_000)
         received = [(r.frame.raw, r.t_first_ns, r.t_last_ns) for r in pc.received]
         _RX_LIGHT.append(pc_light)
-        return sorted(frames), received, fleet.world.collisions, events
+        return sorted(frames), received, fleet.world.collisions, events, records
     finally:
         bus.close()
         session.close()
+
+
+def _per_module(records: list[tuple[str, bytes]]) -> dict[str, list[bytes]]:
+    out: dict[str, list[bytes]] = {}
+    for key, payload in records:
+        out.setdefault(key, []).append(payload)
+    return out
 
 
 @pytest.mark.parametrize("n", [12, 60])
@@ -56,13 +65,17 @@ def test_the_core_gives_the_python_paths_frames_and_the_pcs_bytes(n):
     PC included) in C give every frame the FirmwareDriver path gives, at the same times, and
     the PC decodes the same bytes out of the boot pile-up."""
     sc = block_scenarios(n, "firmware")[0]
-    py_frames, py_rx, py_coll, py_events = _run(sc, core=False)
-    c_frames, c_rx, c_coll, c_events = _run(sc, core=True)
+    py_frames, py_rx, py_coll, py_events, py_records = _run(sc, core=False)
+    c_frames, c_rx, c_coll, c_events, c_records = _run(sc, core=True)
     assert len(py_frames) > 20 * n
     assert c_frames == py_frames
     assert py_coll > 0 and c_coll == py_coll  # the pile-up is there, and the same
     assert c_rx == py_rx
     assert sorted(c_events) == sorted(py_events)  # collision events: receivers, sources, bytes
+    # every actuator/LED/multiplexer record, byte for byte, in each module's order (the core
+    # writes a window's records at its end: modules interleave differently, each module does not)
+    assert len(py_records) > 4 * n
+    assert _per_module(c_records) == _per_module(py_records)
     light = _RX_LIGHT[-1]  # the core writes the PC's bursts itself: each is Burst.to_json's bytes
     assert len(light) > n
     assert all(Burst.from_dict(json.loads(p)).to_json() == p for p in light)
@@ -91,4 +104,41 @@ def test_the_fleet_says_why_it_leaves_the_core():
         wall.close()
     finally:
         bus.close()
+        session.close()
+
+
+def test_a_scenario_that_names_no_program_runs_the_firmware_on_the_core():
+    """The fast path is the default: no ``program`` in the scenario means the C firmware on the
+    fleet core; where the run cannot have it, the Python programs and one line saying why."""
+    clock = VirtualClock()
+    session = open_session(SessionOptions(isolated=True))
+    buses = []
+
+    def bus(clock, name):
+        buses.append(Bus(clock, name, session=session))
+        return buses[-1]
+
+    plain = 'fixed = [0, 0]\n[[modules]]\ncell = [0, 0]\nid = 1\n[[modules]]\ncell = [1, 0]\nid = 2\n'
+    try:
+        assert loads(plain).program is None
+        fleet = Fleet(bus(clock, "coredefault"), loads(plain))
+        assert fleet.core is not None and fleet.program_note is None
+        assert {m.program for m in fleet.modules.values()} == {"firmware"}
+        cases = [(VirtualClock(), "bit_error_rate = 0.001\n" + plain, {}, "bit errors"),
+                 (VirtualClock(), "ir_baud = 2400\n" + plain, {}, "300 baud"),
+                 (VirtualClock(), plain, {"mux_cut": True}, "mux-cut"),
+                 (VirtualClock(), plain, {"core": False}, "Python path"),
+                 (WallClock(), plain, {}, "a wall clock"),
+                 (VirtualClock(), plain.replace("id = 2\n", 'id = 2\nprogram = "simavr"\n'), {}, "simavr")]
+        for i, (c, text, kw, why) in enumerate(cases):
+            fleet = Fleet(bus(c, f"coremodel{i}"), loads(text), **kw)
+            assert fleet.core is None
+            assert fleet.program_note.startswith("program: the Python programs") and why in fleet.program_note
+            assert "\n" not in fleet.program_note
+            assert fleet.scenario.program == "model"
+        named = Fleet(bus(VirtualClock(), "corenamed"), loads('program = "model"\n' + plain))
+        assert named.core is None and named.program_note is None  # a scenario that says is obeyed
+    finally:
+        for b in buses:
+            b.close()
         session.close()

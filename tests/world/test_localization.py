@@ -13,14 +13,13 @@ reference, rotated by ``-o_r`` steps, and ``Yref = orientation - o_r (mod 6)``."
 from __future__ import annotations
 
 import dataclasses
-from collections import deque
 
 import pytest
 
 from bus.codec import Kind
 from bus.envelope import Envelope
 from bus.functions import FunctionCode as F
-from bus.lattice import Cell
+from bus.lattice import Cell, rings
 from bus.scenario import load, loads
 from bus.timing import TICK_NS, localize_step_ticks
 
@@ -72,19 +71,10 @@ def report(rig: Rig, ident: int) -> dict:
     return pos.frame.view
 
 
-def rings(scenario) -> dict[int, int]:
-    """Module id -> number of module-to-module hops from the fixed module (BFS)."""
+def hops_of(scenario) -> dict[int, int]:
+    """Module id -> number of module-to-module hops from the fixed module."""
     by_cell = {m.cell: m.id for m in scenario.modules}
-    dist = {by_cell[scenario.fixed]: 0}
-    todo = deque([scenario.fixed])
-    while todo:
-        c = todo.popleft()
-        for dx, dy in OFFSET.values():
-            n = Cell(c.x + dx, c.y + dy)
-            if n in by_cell and by_cell[n] not in dist:
-                dist[by_cell[n]] = dist[by_cell[c]] + 1
-                todo.append(n)
-    return dist
+    return {by_cell[c]: h for c, h in rings(scenario.fixed, by_cell).items()}
 
 
 def expected_position(scenario, m) -> tuple[int, int, int]:
@@ -134,7 +124,7 @@ def test_v2_localization_of_fig_4_13_in_three_steps(rigs, case):
     if CASES[case] is not None:
         sc = _rotated(sc, CASES[case])
     rig = rigs(sc)
-    hops = rings(sc)
+    hops = hops_of(sc)
     assert max(hops.values()) == 3
     per_step, windows = run_localization(rig, steps=3)
     for k, reports in enumerate(per_step, start=1):
@@ -208,7 +198,7 @@ def test_v2_step_time_is_the_slot_schedule(rigs):
 
 
 # --- thesis-2009 -----------------------------------------------------------------------------------
-THESIS_SC = ('profile = "thesis-2009"\nfixed = [0, 0]\n'
+THESIS_SC = ('profile = "thesis-2009"\nprogram = "model"\nfixed = [0, 0]\n'
              "[[modules]]\nid = 1\ncell = [0, 0]\n"  # the reference
              "[[modules]]\nid = 2\ncell = [0, 1]\norientation = 2\n"  # across its side 2
              "[[modules]]\nid = 3\ncell = [1, 0]\n"  # across its side 3
@@ -262,3 +252,27 @@ def test_thesis_localize_serves_sides_2_and_3_with_fixed_messages(rigs):
     assert (c[2].L, c[2].X, c[2].Y, c[2].Yref) == (1, 0, 1, 2)
     assert (c[3].L, c[3].X, c[3].Y, c[3].Yref) == (1, 0, 0, 0)  # truth: (1, 0)
     assert (c[4].L, c[4].Yref) == (0, 1)  # nothing heard; the boot's assumed Yref = 1 stays
+
+
+def test_bring_up_localizes_in_o_n_plus_d_frames(rigs):
+    """Bring-up runs one Localize step per ring and reads every module back once: the PC's
+    frames are Select + Ref, the reference's Select + Report, two per step and two per other
+    module (O(n + d)); polling every module after every step was O(n * d)."""
+    from planner_svc.bringup import BringUp
+
+    sc = load("localization")
+    rig = rigs(sc)
+    sent: list[bytes] = []
+    send_raw = rig.pc.send_raw
+
+    def spy(data: bytes, **kw) -> int:
+        sent.append(data)
+        return send_raw(data, **kw)
+    rig.pc.send_raw = spy
+    said: list[str] = []
+    view = BringUp(rig.pc, sc, say=said.append).run()
+    n, d = len(sc.modules), max(hops_of(sc).values())
+    assert len(sent) == 4 + 2 * d + 2 * (n - 1), said
+    assert {i: (m.cell, m.orientation, m.localized) for i, m in view.modules.items()} == \
+        {m.id: (m.cell, m.orientation, True) for m in sc.modules}
+    assert f"localized {n} of {n} modules in {d} Localize step(s)" in said[-1]
