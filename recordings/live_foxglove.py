@@ -9,6 +9,12 @@ Foxglove WebSocket). Loopback by default: the server has no authentication.
 Times are those of the recording: a start instant plus sim time on the virtual clock, the wall
 clock otherwise. A client that connects late gets each channel's messages from then on, plus the
 whole scene again (a snapshot is sent on every new subscription to the scene).
+
+The scene and the log channels are made before the server listens. The SDK tells a connected
+client of a channel made later before it records that channel for the client, so a client that
+subscribes as soon as it hears of one (the Foxglove app for an open panel) can be refused
+("unknown channel"); channels that exist when a client connects are recorded before the SDK reads
+anything from it. A bus key's channel is made the first time the key carries a sample.
 """
 
 from __future__ import annotations
@@ -24,7 +30,7 @@ from bus.keys import Keys
 
 from .foxglove import FoxgloveView
 from .recorder import int_field
-from .schemas import SCENE_TOPIC, kind_of
+from .schemas import DERIVED, SCENE_TOPIC, kind_of
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765
@@ -47,6 +53,8 @@ class LiveFoxglove:
         self._lock = threading.Lock()
         self._last_ns = 0
         self._closed = False
+        for topic in DERIVED:  # before any client connects: see the module's docstring
+            self._channel(topic)
         self._server = foxglove.start_server(name=name, host=host, port=port, context=self._context,
                                              server_listener=_Listener(self))
         self.port: int = self._server.port
@@ -115,9 +123,6 @@ class LiveFoxglove:
         self.close()
 
 
-_SNAPSHOT_AGAIN_S = 1.0  # after a subscription to the scene, when the scene is sent again
-
-
 class _Listener(foxglove.ServerListener):
     """A client subscribing to the scene gets the whole scene at once."""
 
@@ -125,11 +130,7 @@ class _Listener(foxglove.ServerListener):
         self._live = live
 
     def on_subscribe(self, client: Any, channel: Any) -> None:
-        if channel.topic == SCENE_TOPIC:  # off the server's thread: snapshot() takes the lock
+        # The SDK has added the client to the channel's sinks when it calls this: what is logged
+        # now reaches it. Off the server's thread: snapshot() takes the lock.
+        if channel.topic == SCENE_TOPIC:
             threading.Thread(target=self._live.snapshot, name="foxglove-snapshot", daemon=True).start()
-            # The SDK calls this while it makes the subscription: a message logged at once can
-            # miss the new client (seen under load: a viewer with an empty scene until something
-            # moved). The whole scene again a moment later reaches it for sure.
-            timer = threading.Timer(_SNAPSHOT_AGAIN_S, self._live.snapshot)
-            timer.daemon = True
-            timer.start()

@@ -7,6 +7,9 @@ from bus.codec import GRAMMARS, Kind, Link
 from bus.framer import Framer, frames
 from bus.functions import FUNCTIONS, used_codes
 
+#: every coordinate the v2 protocol carries (MSG1's tens byte reaches 12)
+coords = st.integers(-codec.COORD_LIMIT["v2"], codec.COORD_LIMIT["v2"])
+
 
 def _starts(link: Link) -> set[int]:
     """Bytes that can begin some frame of the link."""
@@ -30,8 +33,8 @@ def centre_frame(draw):
         return codec.encode_banner(draw(st.sampled_from(list(codec.BANNERS))),
                                    preamble=draw(st.booleans()), role=role)
     if kind == "pos":
-        return codec.encode_position(draw(st.integers(1, 255)), draw(st.integers(-99, 99)),
-                                     draw(st.integers(-99, 99)), draw(st.integers(0, 5)),
+        return codec.encode_position(draw(st.integers(1, 255)), draw(coords),
+                                     draw(coords), draw(st.integers(0, 5)),
                                      localized=True, mobile=True, substrate=False, role=role)
     if kind == "side":
         return codec.encode_side_report(draw(st.integers(1, 6)))
@@ -42,7 +45,7 @@ def centre_frame(draw):
 def side_frame(draw):
     if draw(st.booleans()):
         return bytes([draw(st.sampled_from(codec.PROBE_BYTES))])
-    return codec.encode_msg1(draw(st.integers(-99, 99)), draw(st.integers(-99, 99)),
+    return codec.encode_msg1(draw(coords), draw(coords),
                              draw(st.integers(1, 6)), role=draw(st.sampled_from([b"", b"S: "])))
 
 

@@ -95,3 +95,34 @@ def test_a_plan_that_leaves_the_range_is_refused_before_the_fleet_boots(tmp_path
     assert main(["plan", str(p), "--planner", "thesis-serial"]) == 1
     out, err = capsys.readouterr()
     assert "goal reached" in out and err.count("\n") == 1 and "(128,0)" in err
+
+
+@pytest.mark.parametrize("program", ["model", "firmware"])
+def test_thesis_6_120_cells_from_the_origin_runs_to_the_goal(tmp_path, capsys, program):
+    """Refused before (absolute coordinates held to -99..99); every module is localized in
+    the reference's frame and turned back into the scenario's cells."""
+    from hexbench.cli import main
+
+    p = tmp_path / "far.toml"
+    p.write_text(shifted_thesis_6(120, -120))
+    assert main(["run", str(p), "--program", program]) == 0
+    out = capsys.readouterr().out
+    assert "localized 6 of 6 modules" in out and out.strip().splitlines()[-1].startswith(
+        "thesis-serial: goal reached; steps 8, moves 8")
+
+
+@pytest.mark.slow
+def test_a_101_module_line_runs_to_the_goal_100_cells_from_its_reference(tmp_path, capsys):
+    """Fixed [-1, 0], x = -1..99 (the issue's line: the model died at Localize step 100, the C
+    told m101 it sat on the reference's cell); the far end then moves. The C firmware on the
+    fleet core: ~47 s wall on a loaded 2-core machine."""
+    from hexbench.cli import main
+
+    goal = [[x, 0] for x in range(-1, 99)] + [[98, 1]]
+    p = tmp_path / "line.toml"
+    p.write_text(line(101, -1, extra=f"goal = {goal}\n"))
+    assert main(["run", str(p), "--program", "firmware"]) == 0
+    out = capsys.readouterr().out
+    assert "could not be localized" not in out and "101 modules read back" in out
+    assert "moved (99,0)->(98,1)" in out and out.strip().splitlines()[-1].startswith(
+        "thesis-serial: goal reached; steps 1, moves 1")

@@ -42,10 +42,12 @@ class Module:
         self.m.switches = [bool(switches >> k & 1) for k in range(6)]
         self.centre = bytearray()
         self.sides: dict[int, bytearray] = {}
+        self.log: list[tuple[int, int, int]] = []  # (start bit, transceiver, byte)
 
         def on_tx(data: bytes, starts: list[int]) -> None:
             k = self.m.comm.ir_transceiver
             (self.centre if k == 0 else self.sides.setdefault(k, bytearray())).extend(data)
+            self.log.extend((t, k, b) for t, b in zip(starts, data))
         self.m.comm.uart1.on_tx = on_tx
         self.m.power_up()
         self.now = 10 * NS_PER_S
@@ -166,3 +168,22 @@ def test_a_localized_module_tells_only_cells_msg1_carries(module):
     here = Cell(LIMIT, 0)
     carried = {(c.x, c.y) for c in here.neighbours() if max(abs(c.x), abs(c.y)) <= LIMIT}
     assert len(carried) == 4 and told == carried
+
+
+def test_both_programs_send_the_same_bytes_at_the_same_times_at_the_edge():
+    """The differential at (127, 0): localized by a MSG1, a sender step, a Move past the limit,
+    the reports: every IR byte, its transceiver and its start bit equal in the model and the
+    host C build (the same comm.c the AVR image runs)."""
+    logs = []
+    for program in ("model", "firmware"):
+        m = Module(program, 0b111111)
+        try:
+            m.localize(msg1(LIMIT, 0, 1))
+            m.localize()
+            yref = m.report()["yref"]
+            m.command("Move", 1, 9, _joint_towards(Cell(LIMIT, 0), yref, +1), 0, 1, 8, 4, 9, wait_s=5.0)
+            m.report()
+            logs.append(m.log)
+        finally:
+            m.close()
+    assert len(logs[0]) > 300 and logs[0] == logs[1]

@@ -7,6 +7,7 @@ from __future__ import annotations
 import pytest
 
 from bus.codec import encode_command
+from bus.functions import FunctionCode as F
 from bus.timing import NS_PER_S, TICK_NS
 from module_sim.script import Event
 from toolchain import needs_avr
@@ -87,3 +88,56 @@ def test_a_relay_during_selftest_is_lost_cleanly_in_both_programs():
     assert _acks(firmware) == [64, ord("~"), 11]
     s3 = MAGNET_POS[3]
     assert _port(firmware, "control", s3.port) & s3.mask
+
+
+def test_a_frame_with_a_damaged_start_does_not_swallow_its_retries():
+    """Issue 50 item 3, its case: a Move sent with ``--timing 8,35,42`` whose '*' was damaged,
+    then sent again twice. Its arguments end in '#', '*': v2 resynchronised on the '*', took the
+    retry's t2 (35) for the '#' and answered ACK 35 to every retry. A frame after a silence is
+    read in step whatever its arguments: each retry runs (ACK 21, MCW)."""
+    from hexbench.firmware import compare, differential
+
+    move = encode_command("Move", 1, 1, 2, 9, 5, 8, 35, 42)
+    s = NS_PER_S
+    script = [(11 * s, b"+" + move[1:]), (13 * s, move), (16 * s, move)]
+    model, firmware = differential("v2", script, 19.0)
+    assert compare(model, firmware) == []
+    assert _acks(firmware) == [F.MCW, F.MCW]
+
+
+def test_id_0_is_never_an_address():
+    """Issue 50 item 4: a module without an id (its DIP switches all open) is neither
+    selected by ``Select 1 0`` nor ``Select 3 0`` (every module without an id, or whose id
+    byte timed out, would answer at once) nor moved by a ``Move`` naming 0. A broadcast
+    still reaches it."""
+    from hexbench.firmware import compare, differential
+
+    s = NS_PER_S
+    script = [(11 * s, encode_command("Select", 1, 0, 0)), (13 * s, encode_command("Report")),
+              (15 * s, encode_command("Select", 3, 0, 0)), (17 * s, encode_command("Report")),
+              (19 * s, encode_command("Move", 1, 0, 2, 0, 5, 8, 4, 9)),
+              (22 * s, encode_command("Select", 0, 0, 0)), (24 * s, encode_command("LOn"))]
+    model, firmware = differential("v2", script, 26.0, module_id=0)
+    assert compare(model, firmware) == []
+    assert not [e for e in firmware if e.what == "ir" and e.t_ns > 11 * s]  # no ACK, no POS
+    debug = bytes(int(e.detail, 16) for e in firmware if e.what == "debug" and e.t_ns > 11 * s)
+    assert b"MSG" not in debug  # nothing relayed: the Move ran on neither board
+    assert [e for e in firmware if e.what == "port" and e.detail.startswith("comm") and e.t_ns > 24 * s]
+
+
+@pytest.mark.parametrize("command", [("JTest", 1, 0), ("MCW", 2, 0, 0, 0), ("SCCW", 4, 0, 0, 0)],
+                         ids=lambda c: c[0])
+def test_a_zero_tick_pulse_changes_no_bit_and_is_not_reported(command):
+    """Issue 50 item 6: a command with t = 0 opens and closes its coils in one step. The
+    protocol reports a step that changes the bits; this one changes none, so neither
+    program sends an ACT line (the model sent an all-off one when it was the first actuator
+    activity after boot). After reported changes (JxOpen 1, JxClose 1) it is silent too."""
+    from hexbench.firmware import compare, differential
+
+    s = NS_PER_S
+    script = [(11 * s, encode_command(*command)), (13 * s, encode_command("JxOpen", 1)),
+              (15 * s, encode_command("JxClose", 1)), (17 * s, encode_command(*command))]
+    model, firmware = differential("v2", script, 19.0)
+    assert compare(model, firmware) == []
+    debug = bytes(int(e.detail, 16) for e in firmware if e.what == "debug" and e.t_ns > 11 * s)
+    assert debug.count(b"ACT") == 2

@@ -14,13 +14,16 @@ MAX_IDS = 255  # hardware ids 1..255 (the DIP switches)
 
 
 def block_scenarios(n: int, program: str = "model") -> list[Scenario]:
+    """Fleet ``i`` has seed ``i``: its modules power up at their own phases, so the fleets' coil
+    changes and banners do not fall on the same instants (shared seeds flattered a clock with
+    several fleets: their events shared windows)."""
     k = math.ceil(n / MAX_IDS)
     sizes = [n // k + (1 if i < n % k else 0) for i in range(k)]
     out = []
-    for size in sizes:
+    for i, size in enumerate(sizes):
         side = int(size ** 0.5) + 1
         cells = "\n".join(f"[[modules]]\ncell = [{j % side}, {j // side}]\nid = {j + 1}" for j in range(size))
-        out.append(loads(f'profile = "v2"\nprogram = "{program}"\nfixed = [0, 0]\n{cells}\n'))
+        out.append(loads(f'profile = "v2"\nprogram = "{program}"\nseed = {i}\nfixed = [0, 0]\n{cells}\n'))
     return out
 
 
@@ -34,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
     from bus.session import SessionOptions, open_session
     from bus.transport import Bus
     from module_sim.fleet import Fleet
-    from module_sim.shards import participants, shard_name, window_ns
+    from module_sim.shards import LAGS, participants, shard_name, window_ns
 
     p = argparse.ArgumentParser()
     p.add_argument("n", type=int)
@@ -50,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
     buses = [Bus(clock, name, session=session) for name in fleet_names(args.n, args.tag)]
     w = window_ns(scenarios[0].ir_baud)
     fleets = [Fleet(bus, sc, shard=(k, parts), slack_ns=2 * w) for bus, sc in zip(buses, scenarios)]
-    step = Lockstep(buses[0], shard_name(k), participants(parts), w, timeout_s=300)
+    step = Lockstep(buses[0], shard_name(k), participants(parts), w, timeout_s=300, lags=LAGS)
     for i, fleet in enumerate(fleets):
         fleet.power_up(freeze_gc=i == len(fleets) - 1)
     print("ready", flush=True)
