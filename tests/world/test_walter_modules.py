@@ -72,15 +72,37 @@ class Rig(FleetRig):
         self.poses[p.module] = p
 
 
+def _run(toml: str, problem: WalterProblem) -> Rig:
+    rig = Rig(toml)
+    rig.mark = len(rig.frames)
+    rig.driver.upload(problem)
+    rig.starts = []  # sim time of each round's end
+    rig.result = rig.driver.run(8, progress=lambda r, heard: rig.starts.append(rig.clock.now_ns()))
+    return rig
+
+
 @pytest.fixture(scope="module")
 def chain3():
-    rig = Rig(CHAIN3)
-    rig.mark = len(rig.frames)
-    rig.driver.upload(CHAIN3_PROBLEM)
-    rig.starts = []  # sim time of each beat's end
-    rig.result = rig.driver.run(8, progress=lambda r, heard: rig.starts.append(rig.clock.now_ns()))
+    rig = _run(CHAIN3, CHAIN3_PROBLEM)
     yield rig
     rig.close()
+
+
+def test_the_c_firmware_makes_the_same_frames(chain3):
+    """The C firmware (host build) against the Python model: every frame on every wire, the
+    same bytes at the same sim time, from power-up to the last round."""
+    fw = _run(CHAIN3.replace('program = "model"', 'program = "firmware"'), CHAIN3_PROBLEM)
+    try:
+        def key(f):
+            return f.link, f.src, f.raw, f.sim_time_ns
+        model, firmware = [key(f) for f in chain3.frames], [key(f) for f in fw.frames]
+        first = next((k for k, (a, b) in enumerate(zip(model, firmware)) if a != b), None)
+        assert first is None and len(model) == len(firmware), (
+            f"first difference at frame {first}: model {model[first] if first is not None else None}"
+            f" firmware {firmware[first] if first is not None else None}; {len(model)} vs {len(firmware)}")
+        assert fw.result == chain3.result
+    finally:
+        fw.close()
 
 
 def _round_of(rig: Rig, t_ns: int) -> int:
@@ -134,3 +156,25 @@ def test_each_module_logs_every_round_on_its_debug_uart(chain3):
     assert [v["moved"] for v in m2] == [False, False, True, False]
     assert m2[-1]["position"] == 1 and m2[-1]["direction"] == "CCW" and m2[2]["stopped"]
     assert all(v["anchor"] and not v["moved"] for v in by_module["m1"])
+
+
+def test_the_flashed_images_make_the_same_frames_in_simavr(chain3):
+    """The AVR images in simavr cores: every wire carries the model's frames, in the same
+    order (times differ by design: each board's own tick grid and UBRR-exact baud rates,
+    docs/firmware.md), and the world sees the same moves."""
+    sim = _run(CHAIN3.replace('program = "model"', 'program = "simavr"'), CHAIN3_PROBLEM)
+    try:
+        def per_wire(rig):
+            wires: dict[tuple[str, str], list[bytes]] = {}
+            for f in rig.frames:
+                wires.setdefault((f.link, f.src), []).append(f.raw)
+            return wires
+        model, flashed = per_wire(chain3), per_wire(sim)
+        differ = [w for w in sorted(set(model) | set(flashed)) if model.get(w) != flashed.get(w)]
+        assert not differ, f"wires that differ: {differ[:4]}"
+        assert sim.result.rounds == chain3.result.rounds and sim.result.done
+        moves = [(e.module, tuple(e.data["to"])) for e in sim.events if e.kind == "move-completed"]
+        assert moves == [(e.module, tuple(e.data["to"])) for e in chain3.events
+                         if e.kind == "move-completed"]
+    finally:
+        sim.close()
