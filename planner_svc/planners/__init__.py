@@ -163,6 +163,13 @@ PLANNERS: dict[str, FunctionPlanner] = {
     )
 }
 
+#: The distributed planner (Walter, Tsai & Amato): the PC checks the goal and beats the rounds,
+#: the modules decide their moves (planner_svc.planners.walter, planner_svc.rounds); it makes no
+#: central plan, so it is not in PLANNERS.
+WALTER = "walter"
+WALTER_DESCRIPTION = ("Walter, Tsai & Amato: the modules reconfigure themselves from a straight "
+                      "chain in lockstep rounds the PC beats (hexbench run <scenario> --planner walter)")
+
 #: Prefix of the script planners (:mod:`planner_svc.script`).
 SCRIPT_PREFIX = "script:"
 SCRIPT_DESCRIPTION = ("one PC action per line (send, select, wait, expect) against a fleet: "
