@@ -36,6 +36,9 @@ KINDS = ("virtual", "real", "firmware")
 PROGRAMS = ("model", "firmware", "simavr")
 #: The programs built for 300 baud IR (their localization slots are in ticks of it).
 C_PROGRAMS = ("firmware", "simavr")
+#: What a virtual module runs when neither its scenario nor its entry says (``program`` None):
+#: the C firmware on the fleet core where the run allows it, else the Python programs, with the
+#: reason in one line (module_sim.fleet.default_program).
 
 
 class ScenarioError(HexbenchError, ValueError):
@@ -86,9 +89,10 @@ class Scenario:
     ir_baud: int = 300
     bit_error_rate: float = 0.0
     faults: list[ActuatorFault] = field(default_factory=list)  # injected by the world
-    program: str = "model"  # what virtual modules run unless a module says otherwise
+    #: what virtual modules run unless a module says otherwise; None: the default (above C_PROGRAMS)
+    program: str | None = None
 
-    def program_of(self, module: ModuleSpec) -> str:
+    def program_of(self, module: ModuleSpec) -> str | None:
         return module.program or self.program
 
     @property
@@ -217,7 +221,7 @@ def _build(d: dict[str, Any], source: str, text: str) -> Scenario:
     faults = _faults(d, modules, at)                # each on a module of the fleet
     profile = d.get("profile", "v2")
     _reach(d, modules, goal, fixed, profile, at)    # cells the protocol can name
-    program, ir_baud = d.get("program", "model"), d.get("ir_baud", 300)
+    program, ir_baud = d.get("program"), d.get("ir_baud", 300)
     _firmware_baud(program, ir_baud, modules, at)   # the C programs talk at 300 baud
     name = d.get("name", Path(source).stem if not source.startswith("<") else "scenario")
     return Scenario(name=name, modules=modules, fixed=fixed, goal=goal, obstacles=obstacles,
@@ -467,7 +471,7 @@ def _faults(d: dict[str, Any], modules: list[ModuleSpec], at: _Where) -> list[Ac
     return faults
 
 
-def _firmware_baud(program: str, ir_baud: int, modules: list[ModuleSpec], at: _Where) -> None:
+def _firmware_baud(program: str | None, ir_baud: int, modules: list[ModuleSpec], at: _Where) -> None:
     if ir_baud != 300 and (program in C_PROGRAMS or any(m.program in C_PROGRAMS for m in modules)):
         raise at.expected(("ir_baud",), "300 with program 'firmware' or 'simavr' (the C programs "
                           "are built for 300 baud IR)", ir_baud)

@@ -70,6 +70,8 @@ def cmd_fleet(args: argparse.Namespace) -> int:
         virtual = sum(1 for m in sc.modules if m.kind == "virtual")
         print(f"fleet {sc.name}: {virtual} virtual module(s), profile {sc.profile}, clock "
               f"{args.clock}, keys {bus.keys.all}", flush=True)
+        if fleet.program_note:
+            print(fleet.program_note, flush=True)
         if args.clock == "wall":
             LagNotice(bus)
         signal.signal(signal.SIGTERM, lambda *_: clock.stop())

@@ -54,9 +54,11 @@ def add_run_arguments(p: argparse.ArgumentParser, *, with_fleet: bool) -> None:
                         "debug UART1 on DEBUG_PORT (pyserial URLs); repeatable. The world runs "
                         "a twin of it (docs/hil.md)")
     p.add_argument("--program", choices=["model", "firmware", "simavr"],
-                   help="what virtual modules run: the Python programs (model, the default), the "
+                   help="what virtual modules run: the Python programs (model, the reference), the "
                         "C firmware compiled for the host (firmware) or the flashed images in "
-                        "simavr cores in-process (simavr) (docs/firmware.md)")
+                        "simavr cores in-process (simavr) (docs/firmware.md); default: the "
+                        "scenario's, else the firmware on the fleet core where the run allows it "
+                        "(the virtual clock of one process, no bit errors), else model, saying why")
     p.add_argument("--firmware", action="append", default=[], metavar="ID",
                    help="module ID runs the C firmware (firmware/) in simavr, bridged like a real "
                         "board; repeatable; needs --clock wall (docs/firmware.md)")
@@ -267,9 +269,12 @@ def _options(args: argparse.Namespace, with_fleet: bool) -> RunOptions:
                          f"({', '.join(f'm{m.id}' for m in real)}): real hardware runs on the wall "
                          "clock; use --clock wall")
     compare = getattr(args, "compare_model", False)
-    if compare and (scenario.program != "firmware" or args.clock != "virtual"):
+    if compare and (scenario.program not in ("firmware", None) or args.clock != "virtual"):
         raise UsageError("--compare-model compares a firmware run with a model run on the virtual "
                          "clock: give --program firmware --clock virtual")
+    if compare:
+        import dataclasses
+        scenario = dataclasses.replace(scenario, program="firmware")
     shards = getattr(args, "shards", None)
     bus_args = args
     if shards is not None:
@@ -348,6 +353,10 @@ def _set_up(opts: RunOptions, args: argparse.Namespace, bus: Bus, stack: context
                              plan=opts.plan)
     parts = RunParts(bus, service, since, lag)
     if opts.shards is not None:
+        from module_sim.fleet import Fleet
+        note = Fleet.default_program(bus, scenario, refusal="a sharded fleet runs on a lockstep clock")[1]
+        if note:
+            progress.say(note)
         parts.step, parts.shards = _start_shards(opts.bus_args, bus, scenario, opts.shards, stack, progress)
     elif opts.with_fleet:  # after the service subscribed: it sees the world's first poses
         from module_sim.fleet import Fleet
@@ -356,6 +365,8 @@ def _set_up(opts: RunOptions, args: argparse.Namespace, bus: Bus, stack: context
         for b in bridges:
             stack.callback(b.close)
         parts.fleet = Fleet(bus, scenario)
+        if parts.fleet.program_note:
+            progress.say(parts.fleet.program_note)
         parts.checks = _twin_checks(bus, scenario, parts.fleet, bridges, hil_port)
         parts.fleet.power_up()
     return parts

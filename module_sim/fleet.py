@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import gc
 import random
 from typing import TYPE_CHECKING
@@ -11,7 +12,7 @@ from typing import TYPE_CHECKING
 from bus.clock import VirtualClock, WallClock
 from bus.keys import module_endpoint
 from bus.scenario import Scenario
-from bus.timing import NS_PER_S, TICK_NS
+from bus.timing import NS_PER_S, TICK_NS, Baud
 from bus.transport import Bus
 
 from .module import VirtualModule
@@ -84,8 +85,15 @@ class Fleet:
         ``core``: run the firmware-program modules and the IR medium in the fleet core
         (:mod:`module_sim.core`) where it can (:meth:`core_refusal`); False: the Python path."""
         self.bus = bus
-        self.scenario = scenario
         self.profile = profile(profile_name or scenario.profile)
+        #: why a scenario that names no program runs the Python programs (None: it does not)
+        self.program_note: str | None = None
+        if scenario.program is None:
+            scenario, self.program_note = self.default_program(
+                bus, scenario, mux_cut, self.profile.name,
+                refusal="the fleet was made for the Python path" if not core else
+                "a shard's fleet runs on a lockstep clock" if shard is not None else None)
+        self.scenario = scenario
         self.shard = shard
         mine = {m.id for m in scenario.modules}
         if shard is not None:
@@ -112,6 +120,24 @@ class Fleet:
         self.lag = LagWatch(bus) if isinstance(bus.clock, WallClock) else None
 
     @staticmethod
+    def default_program(bus: Bus, scenario: Scenario, mux_cut: bool = False, profile: str | None = None,
+                        refusal: str | None = None) -> tuple[Scenario, str | None]:
+        """``scenario`` with the default program made explicit (bus.scenario: its ``program``
+        None): the C firmware on the fleet core where it can run this fleet, else the Python
+        programs and one line saying why (``refusal``: a reason the caller knows already)."""
+        if scenario.program is not None:
+            return scenario, None
+        if refusal is None and scenario.ir_baud != Baud.IR:
+            refusal = f"the C programs are built for {int(Baud.IR)} baud IR, not {scenario.ir_baud}"
+        if refusal is None:
+            firmware = dataclasses.replace(scenario, program="firmware")
+            refusal = Fleet.core_refusal(bus, firmware, mux_cut, profile)
+            if refusal is None:
+                return firmware, None
+        return (dataclasses.replace(scenario, program="model"),
+                f"program: the Python programs, not the C firmware on the fleet core: {refusal}")
+
+    @staticmethod
     def core_refusal(bus: Bus, scenario: Scenario, mux_cut: bool = False,
                      profile: str | None = None) -> str | None:
         """Why the fleet core cannot run this fleet (None: it can): what only the Python
@@ -123,7 +149,8 @@ class Fleet:
     def _core_or_refusal(bus: Bus, scenario: Scenario, mux_cut: bool, profile: str) -> "FleetCore | str":
         """The clock's fleet core for this fleet (made on first use), or why it cannot be."""
         if type(bus.clock) is not VirtualClock:  # a lockstep clock's windows are the shards'
-            return "the core runs on the virtual clock of one process"
+            what = "a wall clock" if isinstance(bus.clock, WallClock) else "a lockstep clock (shards)"
+            return f"{what}: the core runs on the virtual clock of one process"
         if mux_cut:
             return "a multiplexer that cuts bursts (--mux-cut) is modelled in Python only"
         if scenario.bit_error_rate:

@@ -329,6 +329,8 @@ class MotionJudge:
         # of an actuator change does not grow with the fleet.
         self._rank = {m: k for k, m in enumerate(self._mods)}
         self._trying: set[str] = set()
+        #: take :meth:`on_actuators`' short way where it applies (False: always the long one)
+        self.quick = True
 
     # --- queries ------------------------------------------------------------------
     @property
@@ -371,8 +373,19 @@ class MotionJudge:
             raise ValueError("need six joints and six magnets")
         if any(m not in (MAG_OFF, MAG_POS, MAG_NEG, MAG_BOTH) for m in magnets):
             raise ValueError(f"magnet values must be -1, 0, 1 or 2: {list(magnets)}")
-        out = self.advance(t_ns)
         mod = self._mods[module]
+        if self.quick and not self._flights and not self._trying and t_ns >= self._now:
+            # Nothing moves and nobody tries to: a change that makes no magnet pair (and no
+            # relay fight) can start nothing, and no other module's verdict depends on it
+            # (verdicts are made for attempts only). The long way below ends the same.
+            mags = tuple(int(m) for m in magnets)
+            if MAG_BOTH not in mags and not any(mags[k - 1] == MAG_NEG and mags[k - 2] == MAG_NEG
+                                                for k in range(1, 7)):
+                mod.joints_open = tuple(bool(j) for j in joints_open)
+                mod.magnets = mags
+                self._now = t_ns
+                return []
+        out = self.advance(t_ns)
         old_mag = mod.magnets
         mod.joints_open = tuple(bool(j) for j in joints_open)
         mod.magnets = tuple(int(m) for m in magnets)

@@ -43,7 +43,7 @@ class _Batch(ctypes.Structure):
                 ("ix_len", _i64), ("frames", _i64), ("tmin", _i64), ("tmax", _i64), ("last_sim", _i64),
                 ("noise", _p), ("item", _i64), ("phase", _i32), ("no_log", _i32),
                 ("head_at", _i64), ("head_len", _i64), ("kind_at", _i64), ("kind_len", _i64),
-                ("log_time", _i64)]
+                ("log_time", _i64), ("recs", _p), ("records", _i64)]
 
 
 def _build() -> None:
@@ -77,6 +77,10 @@ def _load() -> Any:
     lib.fb_frames.restype = ctypes.c_int
     lib.fb_index.argtypes = [_p, _p, _p, _i64, _p, _p, _p, ctypes.POINTER(_i64)]
     lib.fb_index.restype = _i64
+    lib.fb_records_new.restype = _p
+    lib.fb_records_free.argtypes = [_p]
+    lib.fb_record_seen.argtypes = [_p, _i32, ctypes.c_char_p, _i64, _i32]
+    lib.fb_record_seen.restype = ctypes.c_int
     return lib
 
 
@@ -126,9 +130,11 @@ class FrameBatch:
         assert native is not None
         self.lib = native
         self.rests = native.fb_table_new()
-        if not self.rests:
+        self.records = native.fb_records_new()
+        if not self.rests or not self.records:
             raise MemoryError("fb_table_new")
         self.state = _Batch()
+        self.state.recs = self.records
         self.out = ctypes.create_string_buffer(self.OUT_BYTES)
         self.noise = ctypes.create_string_buffer(0)
         self.ix: tuple[array, array, array] = (array("i"), array("q"), array("q"))
@@ -137,11 +143,33 @@ class FrameBatch:
         rests, self.rests = getattr(self, "rests", None), None
         if rests:
             self.lib.fb_table_free(rests)
+        records, self.records = getattr(self, "records", None), None
+        if records:
+            self.lib.fb_records_free(records)
 
     def remember(self, head: bytes, kind: bytes, rest: bytes) -> None:
         """A Foxglove line of (head, kind), for the next frames that have them."""
         if self.lib.fb_table_put(self.rests, head, len(head), kind, len(kind), rest, len(rest)) != 0:
             raise MemoryError("fb_table_put")
+
+    def record_seen(self, cid: int, payload: bytes, known: bool) -> None:
+        """Python wrote record ``payload`` on channel ``cid``: its coils are the channel's now
+        (the scene's), and, if ``known``, the same bytes with another sim time may be written
+        in C from now on (the careful path would write, count and derive them alike)."""
+        if self.lib.fb_record_seen(self.records, cid, payload, len(payload), int(known)) != 0:
+            raise MemoryError("fb_record_seen")
+
+    def reset_records(self) -> None:
+        """A new file: its channel ids are new, so nothing Python saw holds for them."""
+        fresh = self.lib.fb_records_new()
+        if not fresh:
+            raise MemoryError("fb_records_new")
+        self.lib.fb_records_free(self.records)
+        self.records = self.state.recs = fresh
+
+    def forget_coils(self, cid: int) -> None:
+        """The channel's next record is Python's (its scene state is not known here)."""
+        self.lib.fb_record_seen(self.records, cid, b"", 0, 0)
 
     def grow_out(self, at_least: int) -> None:
         size = max(at_least, 2 * len(self.out))

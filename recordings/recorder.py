@@ -72,6 +72,7 @@ _STRING = re.compile(rb'\s*"([^"\\]*)"')
 _ENVELOPE_AT_START = re.compile(rb'(\{"link":"[^"\\]*","src":"[^"\\]*","dst":"[^"\\]*","raw":"[^"\\]*")'
                                 rb',"sim_time_ns":(\d+),"wall_time_ns":(\d+),"seq":\d+,"kind":"([^"\\]*)"')
 _KIND_NAMES: dict[bytes, str] = {}  # a frame kind's bytes -> its name
+_ACTUATORS = "world/actuators/"  # the records the C batch path writes too, once seen here
 
 
 def _kind_name(raw: bytes) -> str:
@@ -534,9 +535,31 @@ class Recorder:
             if self._fox is not None:
                 kind = obj.get("kind") if isinstance(obj, dict) else None
                 self._derive(topic, payload, log_time, obj=obj, kind=kind if isinstance(kind, str) else None)
+            if self._native is not None and topic.startswith(_ACTUATORS):
+                self._record_seen(key, topic, payload, obj, sim)
             if topic == "meta" and isinstance(obj, dict) and not self._closed:
                 self.meta = meta_mod.merge(self.meta, RunMeta.from_dict(obj))
                 self._sink.add_metadata(self.meta)
+
+    def _record_seen(self, key: str, topic: str, payload: bytes, obj: Any, sim: int | None) -> None:
+        """Tell the C batch path an actuator record was written here (under the lock): the
+        channel's coils are the scene's now, and the same bytes at another sim time may be
+        written in C (framebatch.c ``record``), which this path would write, count by topic
+        and derive nothing from. Where the scene did not take this record's coils, the
+        channel's next record stays here."""
+        fb = self._native
+        assert fb is not None
+        cid = self._cids[topic]
+        module = obj.get("module") if isinstance(obj, dict) else None
+        if self._fox is not None:
+            m = self._fox.scene.modules.get(module) if isinstance(module, str) else None
+            act = m.actuators if m is not None else None
+            if (act is None or topic != f"{_ACTUATORS}{module}" or act.magnets != obj.get("magnets")
+                    or act.joints_open != obj.get("joints_open")):
+                fb.forget_coils(cid)
+                return
+        fb.record_seen(cid, payload, sim is not None and "wall_time_ns" not in obj)
+        self._frame_cids[key] = cid
 
     def _decode_record(self, topic: str, payload: bytes) -> Any:
         """The payload decoded; a record that differs from one seen before only in its
@@ -626,6 +649,8 @@ class Recorder:
         self._part_first_ns = None
         self._cids = {}  # channel ids are per file
         self._frame_cids = _NoChannel()
+        if getattr(self, "_native", None) is not None:
+            self._native.reset_records()
         return sink
 
     def _maybe_rotate(self, log_time: int | None) -> None:

@@ -31,6 +31,7 @@ import subprocess
 import threading
 import weakref
 from pathlib import Path
+from time import perf_counter_ns
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -203,6 +204,7 @@ class FleetCore:
         self._batches: dict[Bus, list[tuple[str, bytes]]] = {}  # the window's samples, per bus
         self._burst = itertools.count()  # burst numbers of what goes out on ir/rx
         self.windows = 0
+        self.run_ns = 0  # wall time inside core_run (the rest of a window is Python's)
         # The PC's receivers: a framer like the PC's own follows their bytes, so the core
         # stops a window only at a byte on which the PC's framer can act (core.c quiet_byte)
         pats, first = patterns(Link.CENTRE)
@@ -361,7 +363,9 @@ class FleetCore:
             limit = now + 1
         if clock.until_ns is not None and clock.until_ns + 1 < limit:
             limit = clock.until_ns + 1
+        t0 = perf_counter_ns()
         reached = self.lib.core_run(self._h, max(limit, now + 1))
+        self.run_ns += perf_counter_ns() - t0
         self.windows += 1
         if reached > now:
             clock.advance_to(reached)

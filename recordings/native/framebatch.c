@@ -7,6 +7,13 @@
  * an envelope (Python writes it as Recorder.write would), a channel not registered yet, a Log
  * line not seen yet, a chunk that is full, an output buffer that is full. fb_index() writes a
  * chunk's MessageIndex records. No Python API: loaded with ctypes.
+ *
+ * Records (an actuator record above all: most of a fleet's samples) are written here too when
+ * Python has written the same bytes but their sim_time_ns digits on the same channel before
+ * (fb_record_seen: checked, counted and derived there) and their coils (joints and magnets)
+ * are those of the channel's last record Python saw: then Python's careful path would write
+ * the same message, count it by topic and derive nothing (the scene draws joints and magnets
+ * only). Anything else is Python's, in its place.
  */
 #include <stdint.h>
 #include <stdlib.h>
@@ -26,7 +33,7 @@ enum {
 typedef struct {
     uint64_t hash;
     uint8_t *key; /* head, then kind */
-    int32_t head_len, kind_len;
+    int32_t head_len, kind_len, tag; /* tag: the channel of a record's (head, tail); 0 for Log lines */
     uint8_t *rest;
     int32_t rest_len;
 } slot_t;
@@ -78,16 +85,21 @@ void fb_table_free(table_t *t) {
     free(t);
 }
 
-static slot_t *table_find(table_t *t, uint64_t h, const uint8_t *head, int32_t hl, const uint8_t *kind,
-                          int32_t kl) {
+static slot_t *table_find_tag(table_t *t, uint64_t h, const uint8_t *head, int32_t hl, const uint8_t *kind,
+                              int32_t kl, int32_t tag) {
     int64_t mask = t->cap - 1;
     for (int64_t i = (int64_t)(h & (uint64_t)mask);; i = (i + 1) & mask) {
         slot_t *s = &t->slots[i];
         if (!s->key) return s; /* the empty slot where it would go */
-        if (s->hash == h && s->head_len == hl && s->kind_len == kl && memcmp(s->key, head, (size_t)hl) == 0 &&
-            memcmp(s->key + hl, kind, (size_t)kl) == 0)
+        if (s->hash == h && s->tag == tag && s->head_len == hl && s->kind_len == kl &&
+            memcmp(s->key, head, (size_t)hl) == 0 && memcmp(s->key + hl, kind, (size_t)kl) == 0)
             return s;
     }
+}
+
+static slot_t *table_find(table_t *t, uint64_t h, const uint8_t *head, int32_t hl, const uint8_t *kind,
+                          int32_t kl) {
+    return table_find_tag(t, h, head, hl, kind, kl, 0);
 }
 
 static int table_grow(table_t *t) {
@@ -107,21 +119,26 @@ static int table_grow(table_t *t) {
     return 0;
 }
 
-/* Remember a Log line; 0, or -1 out of memory. */
-int fb_table_put(table_t *t, const uint8_t *head, int32_t hl, const uint8_t *kind, int32_t kl, const uint8_t *rest,
-                 int32_t rl) {
+static int table_put_tag(table_t *t, const uint8_t *head, int32_t hl, const uint8_t *kind, int32_t kl,
+                         const uint8_t *rest, int32_t rl, int32_t tag) {
     if (t->count >= MAX_RESTS) table_clear(t);
     if ((t->count + 1) * 2 > t->cap && table_grow(t) != 0) return -1;
-    uint64_t h = key_hash(head, hl, kind, kl);
-    slot_t *s = table_find(t, h, head, hl, kind, kl);
+    uint64_t h = key_hash(head, hl, kind, kl) ^ (uint64_t)tag * 0xD6E8FEB86659FD93ULL;
+    slot_t *s = table_find_tag(t, h, head, hl, kind, kl, tag);
     uint8_t *key = malloc((size_t)hl + (size_t)kl + 1), *copy = malloc((size_t)rl + 1);
     if (!key || !copy) { free(key); free(copy); return -1; }
     memcpy(key, head, (size_t)hl);
     memcpy(key + hl, kind, (size_t)kl);
     memcpy(copy, rest, (size_t)rl);
     if (s->key) { free(s->key); free(s->rest); } else t->count++;
-    s->hash = h; s->key = key; s->head_len = hl; s->kind_len = kl; s->rest = copy; s->rest_len = rl;
+    s->hash = h; s->key = key; s->head_len = hl; s->kind_len = kl; s->rest = copy; s->rest_len = rl; s->tag = tag;
     return 0;
+}
+
+/* Remember a Log line; 0, or -1 out of memory. */
+int fb_table_put(table_t *t, const uint8_t *head, int32_t hl, const uint8_t *kind, int32_t kl, const uint8_t *rest,
+                 int32_t rl) {
+    return table_put_tag(t, head, hl, kind, kl, rest, rl, 0);
 }
 
 /* ---- the batch ---------------------------------------------------------------------------- */
@@ -153,6 +170,8 @@ typedef struct {
     int64_t item;
     int32_t phase, no_log;
     int64_t head_at, head_len, kind_at, kind_len, log_time;
+    struct records *recs; /* the records Python wrote already (NULL: every record is Python's) */
+    int64_t records;      /* how many records were written here (flag 2 in noise[]) */
 } batch_t;
 
 static int lit_n(const uint8_t *p, int64_t n, int64_t *i, const char *s, size_t k) {
@@ -204,6 +223,96 @@ static int parse(const uint8_t *p, int64_t n, int64_t *head_len, uint64_t *sim, 
     if (!str_body(p, n, &i)) return 0;
     *kind_len = i - 1 - *kind_at;
     return 1;
+}
+
+/* ---- records: (channel, bytes around the sim time) Python wrote, and each channel's coils ---- */
+typedef struct records {
+    table_t known;
+    uint8_t **coils; /* by channel id: its last record's coils (NULL: none, the next is Python's) */
+    int32_t *coils_len;
+    int64_t ncoils;
+} records_t;
+
+records_t *fb_records_new(void) {
+    records_t *r = calloc(1, sizeof *r);
+    if (!r) return NULL;
+    r->known.cap = 1024;
+    r->known.slots = calloc((size_t)r->known.cap, sizeof(slot_t));
+    if (!r->known.slots) { free(r); return NULL; }
+    return r;
+}
+
+void fb_records_free(records_t *r) {
+    if (!r) return;
+    table_clear(&r->known);
+    free(r->known.slots);
+    for (int64_t i = 0; i < r->ncoils; i++) free(r->coils[i]);
+    free(r->coils);
+    free(r->coils_len);
+    free(r);
+}
+
+static const uint8_t *find(const uint8_t *p, int64_t n, const char *s) {
+    size_t k = strlen(s);
+    for (int64_t i = 0; i + (int64_t)k <= n; i++)
+        if (p[i] == (uint8_t)s[0] && memcmp(p + i, s, k) == 0) return p + i;
+    return NULL;
+}
+
+/* A record's sim time digits: [*at, *at + *len), the value; 0 if it has not exactly one
+ * "sim_time_ns": followed by digits and then , or } */
+static int record_time(const uint8_t *p, int64_t n, int64_t *at, int64_t *len, uint64_t *sim) {
+    const uint8_t *f = find(p, n, "\"sim_time_ns\":");
+    if (!f) return 0;
+    int64_t i = (f - p) + 14, start = i;
+    if (!digits(p, n, &i, sim, MAX_DIGITS) || i >= n || (p[i] != ',' && p[i] != '}')) return 0;
+    if ((p[start] == '0' && i - start > 1) || find(p + i, n - i, "\"sim_time_ns\":")) return 0;
+    *at = start;
+    *len = i - start;
+    return 1;
+}
+
+/* The coils of a record's tail: from "joints_open": to ,"led_pos" (the mechanics' slice). */
+static int record_coils(const uint8_t *tail, int64_t n, const uint8_t **at, int64_t *len) {
+    const uint8_t *a = find(tail, n, "\"joints_open\":");
+    if (!a) return 0;
+    const uint8_t *e = find(a, n - (a - tail), ",\"led_pos\"");
+    if (!e) return 0;
+    *at = a;
+    *len = e - a;
+    return 1;
+}
+
+/* Python wrote record p[0:n] on channel cid: its coils are the channel's now, and (known) the
+ * same bytes but the time may be written here from now on. 0, or -1 out of memory. */
+int fb_record_seen(records_t *r, int32_t cid, const uint8_t *p, int64_t n, int32_t known) {
+    if (cid <= 0) return 0;
+    if (cid >= r->ncoils) {
+        int64_t cap = cid * 2 + 16;
+        uint8_t **c = realloc(r->coils, (size_t)cap * sizeof *c);
+        if (!c) return -1;
+        r->coils = c;
+        int32_t *l = realloc(r->coils_len, (size_t)cap * sizeof *l);
+        if (!l) return -1;
+        r->coils_len = l;
+        for (int64_t i = r->ncoils; i < cap; i++) { r->coils[i] = NULL; r->coils_len[i] = 0; }
+        r->ncoils = cap;
+    }
+    free(r->coils[cid]);
+    r->coils[cid] = NULL;
+    int64_t at, len;
+    uint64_t sim;
+    const uint8_t *coils;
+    int64_t coils_len;
+    if (!record_time(p, n, &at, &len, &sim) || !record_coils(p + at + len, n - at - len, &coils, &coils_len))
+        return 0;
+    r->coils[cid] = malloc((size_t)coils_len + 1);
+    if (!r->coils[cid]) return -1;
+    memcpy(r->coils[cid], coils, (size_t)coils_len);
+    r->coils_len[cid] = (int32_t)coils_len;
+    if (!known) return 0;
+    return table_put_tag(&r->known, p, (int32_t)at, p + at + len, (int32_t)(n - at - len), (const uint8_t *)"", 0,
+                         cid);
 }
 
 static int varint(uint8_t *o, uint64_t v) {
@@ -262,6 +371,40 @@ static int room(batch_t *b, int64_t len) {
     return b->out_len + MESSAGE_HEADER + len <= b->out_cap && b->ix_len < b->ix_cap;
 }
 
+#define RECORD_CHUNK_FULL 100
+/* A record Python wrote before but its time, with the channel's coils: written (0, or
+ * RECORD_CHUNK_FULL if the chunk is full after it), or FB_NOT_FRAME (Python's), or what
+ * Python must do first. */
+static int record(batch_t *b, const uint8_t *p, int64_t n) {
+    records_t *r = b->recs;
+    int32_t cid = b->cids[b->item];
+    int64_t at, len;
+    uint64_t sim;
+    const uint8_t *coils;
+    int64_t coils_len;
+    if (!r || cid <= 0 || cid >= r->ncoils || !r->coils[cid] || !record_time(p, n, &at, &len, &sim) ||
+        sim >= MAX_TIME || (uint64_t)b->origin + sim >= (1ULL << 63))
+        return FB_NOT_FRAME;
+    const uint8_t *tail = p + at + len;
+    int64_t tl = n - at - len;
+    if (!record_coils(tail, tl, &coils, &coils_len) || coils_len != r->coils_len[cid] ||
+        memcmp(coils, r->coils[cid], (size_t)coils_len) != 0)
+        return FB_NOT_FRAME;
+    uint64_t h = key_hash(p, (int32_t)at, tail, (int32_t)tl) ^ (uint64_t)cid * 0xD6E8FEB86659FD93ULL;
+    if (!table_find_tag(&r->known, h, p, (int32_t)at, tail, (int32_t)tl, cid)->key) return FB_NOT_FRAME;
+    if (cid >= b->nseqs) return FB_GROW_SEQS;
+    if (!room(b, n)) return FB_OUT_FULL;
+    int64_t log_time = b->by_sim ? b->origin + (int64_t)sim : b->wall;
+    if ((int64_t)sim > b->last_sim) b->last_sim = (int64_t)sim;
+    b->frames++;
+    b->records++;
+    if (b->frames == 1 || log_time < b->tmin) b->tmin = log_time;
+    if (b->frames == 1 || log_time > b->tmax) b->tmax = log_time;
+    b->noise[b->item] = 2;
+    /* no wall_time_ns in it (Python knew these bytes): published at the batch's receive time */
+    return message(b, cid, (uint64_t)log_time, (uint64_t)b->wall, p, n, NULL, 0) ? RECORD_CHUNK_FULL : 0;
+}
+
 int fb_frames(batch_t *b) {
     for (; b->item < b->n; b->item++) {
         const uint8_t *p = b->buf + b->offs[b->item];
@@ -272,7 +415,13 @@ int fb_frames(batch_t *b) {
         if (!parse(p, n, &head_len, &sim, &pub, &kind_at, &kind_len) || sim >= MAX_TIME || pub >= MAX_TIME ||
             (uint64_t)b->origin + sim >= (1ULL << 63)) {
             if (b->phase) return -1; /* cannot happen: it parsed a moment ago */
-            return FB_NOT_FRAME;
+            int code = record(b, p, n);
+            if (code == 0) continue;
+            if (code == RECORD_CHUNK_FULL) {
+                b->item++;
+                return FB_CHUNK_FULL;
+            }
+            return code;
         }
         int64_t log_time = b->by_sim ? b->origin + (int64_t)sim : b->wall;
         b->head_at = b->offs[b->item];

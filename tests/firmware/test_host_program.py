@@ -68,7 +68,8 @@ def test_compare_model_from_the_command_line(tmp_path, capsys):
                  "firmware", "--compare-model", "--record", str(out)]) == 0
     said = capsys.readouterr().out
     assert "compare: firmware and model agree on all" in said
-    assert main(["run", "pair", "--compare-model"]) == 2
+    # no --program compares the default (the firmware); the model against itself is refused
+    assert main(["run", "pair", "--compare-model", "--program", "model"]) == 2
     assert "give --program firmware --clock virtual" in capsys.readouterr().err
 
 

@@ -151,3 +151,59 @@ def test_the_batch_path_derives_foxglove_lines_and_scene(tmp_path, samples, path
     assert topics.count("foxglove/log") >= rec.tally.frames - 20  # a line per frame but the odd ones
     assert "foxglove/scene" in topics
     assert rec.tally.noise_by_link["side"] >= 2
+
+
+def _actuator_stream(n: int = 4000) -> list[tuple[str, bytes]]:
+    """Actuator records of six modules as the fleet writes them, most repeating an earlier
+    record of their module but its time (LEDs blinking, coils still), coil changes among them,
+    poses placing the modules part-way, and records a careful path must see: one with a
+    wall_time_ns, one on another module's key, malformed ones that share a module's coils."""
+    import random
+
+    from bus.messages import Actuators, Pose
+
+    rng = random.Random(5)
+    coils = [([False] * 6, [0] * 6), ([True] + [False] * 5, [0] * 6), ([False] * 6, [1, -1, 0, 0, 0, 0]),
+             ([False] * 6, [0, 0, 2, 0, 0, 0])]
+    state = {m: 0 for m in range(1, 7)}
+    out: list[tuple[str, bytes]] = []
+    for i in range(n):
+        t = 1_000_000 + 997 * i
+        m = rng.randint(1, 6)
+        if i == n // 3:  # the scene learns where the modules are part-way through
+            for k in range(1, 7):
+                out.append((f"{ROOT}/world/pose/m{k}", Pose(f"m{k}", k, k, 0, 0, t).to_json()))
+        if rng.random() < 0.08:
+            state[m] = rng.randrange(len(coils))
+        joints, magnets = coils[state[m]]
+        led = [bool(rng.getrandbits(1)) for _ in range(2)] + [False] * 4
+        a = Actuators(f"m{m}", t, list(joints), list(magnets), led, [False] * 6, [False] * 6,
+                      rng.choice([0, 1, None]), {"ctrl": {"A": state[m]}, "comm": {"A": 1}})
+        payload = a.to_json()
+        r = rng.random()
+        if r < 0.005:
+            payload = payload[:-1] + b',"wall_time_ns":5}'
+        elif r < 0.01:
+            out.append((f"{ROOT}/world/actuators/m{m % 6 + 1}", payload))  # another module's key
+            continue
+        elif r < 0.015:
+            payload = payload.replace(b'"led_neg"', b'"led_negative"')  # a required field missing
+        elif r < 0.02:
+            payload = payload.replace(b'"origin":"virtual"', b'"origin":7')  # not an Actuators
+        out.append((f"{ROOT}/world/actuators/m{m}", payload))
+    return out
+
+
+@pytest.mark.parametrize("batch", [7, 500])
+def test_actuator_records_in_a_batch_are_written_as_write_writes_them(tmp_path, batch, path_kind):
+    """The C batch path writes a record Python wrote before but its time, on a channel whose
+    coils are the scene's: the same messages, scene updates and tally as sample by sample."""
+    stream = _actuator_stream()
+    _same(tmp_path, stream, batch)
+    _same(tmp_path / "nofox", stream, batch, foxglove=False)
+    _same(tmp_path / "wall", stream, batch, time_source="wall")
+    rec = _record(tmp_path / "count.mcap", stream, batch)
+    scenes = sum(1 for t, *_ in _messages(rec.paths[0]) if t == "foxglove/scene")
+    assert scenes > 20  # coil changes drawn after the poses came
+    if path_kind == "native" and batch >= 16:
+        assert rec._native.state.records > len(stream) // 2  # most records never reached Python

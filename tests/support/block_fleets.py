@@ -14,13 +14,16 @@ MAX_IDS = 255  # hardware ids 1..255 (the DIP switches)
 
 
 def block_scenarios(n: int, program: str = "model") -> list[Scenario]:
+    """Fleet ``i`` has seed ``i``: its modules power up at their own phases, so the fleets' coil
+    changes and banners do not fall on the same instants (shared seeds flattered a clock with
+    several fleets: their events shared windows)."""
     k = math.ceil(n / MAX_IDS)
     sizes = [n // k + (1 if i < n % k else 0) for i in range(k)]
     out = []
-    for size in sizes:
+    for i, size in enumerate(sizes):
         side = int(size ** 0.5) + 1
         cells = "\n".join(f"[[modules]]\ncell = [{j % side}, {j // side}]\nid = {j + 1}" for j in range(size))
-        out.append(loads(f'profile = "v2"\nprogram = "{program}"\nfixed = [0, 0]\n{cells}\n'))
+        out.append(loads(f'profile = "v2"\nprogram = "{program}"\nseed = {i}\nfixed = [0, 0]\n{cells}\n'))
     return out
 
 

@@ -105,3 +105,40 @@ def test_the_fleet_says_why_it_leaves_the_core():
     finally:
         bus.close()
         session.close()
+
+
+def test_a_scenario_that_names_no_program_runs_the_firmware_on_the_core():
+    """The fast path is the default: no ``program`` in the scenario means the C firmware on the
+    fleet core; where the run cannot have it, the Python programs and one line saying why."""
+    clock = VirtualClock()
+    session = open_session(SessionOptions(isolated=True))
+    buses = []
+
+    def bus(clock, name):
+        buses.append(Bus(clock, name, session=session))
+        return buses[-1]
+
+    plain = 'fixed = [0, 0]\n[[modules]]\ncell = [0, 0]\nid = 1\n[[modules]]\ncell = [1, 0]\nid = 2\n'
+    try:
+        assert loads(plain).program is None
+        fleet = Fleet(bus(clock, "coredefault"), loads(plain))
+        assert fleet.core is not None and fleet.program_note is None
+        assert {m.program for m in fleet.modules.values()} == {"firmware"}
+        cases = [(VirtualClock(), "bit_error_rate = 0.001\n" + plain, {}, "bit errors"),
+                 (VirtualClock(), "ir_baud = 2400\n" + plain, {}, "300 baud"),
+                 (VirtualClock(), plain, {"mux_cut": True}, "mux-cut"),
+                 (VirtualClock(), plain, {"core": False}, "Python path"),
+                 (WallClock(), plain, {}, "a wall clock"),
+                 (VirtualClock(), plain.replace("id = 2\n", 'id = 2\nprogram = "simavr"\n'), {}, "simavr")]
+        for i, (c, text, kw, why) in enumerate(cases):
+            fleet = Fleet(bus(c, f"coremodel{i}"), loads(text), **kw)
+            assert fleet.core is None
+            assert fleet.program_note.startswith("program: the Python programs") and why in fleet.program_note
+            assert "\n" not in fleet.program_note
+            assert fleet.scenario.program == "model"
+        named = Fleet(bus(VirtualClock(), "corenamed"), loads('program = "model"\n' + plain))
+        assert named.core is None and named.program_note is None  # a scenario that says is obeyed
+    finally:
+        for b in buses:
+            b.close()
+        session.close()

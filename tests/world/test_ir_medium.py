@@ -6,6 +6,7 @@ modules' orientations) whose multiplexer stays on the facing transceiver for the
 
 from __future__ import annotations
 
+import dataclasses
 
 import pytest
 from hypothesis import given, settings, strategies as st
@@ -40,6 +41,9 @@ class Rig(FleetRig):
     """A booted fleet, the PC, the world's collision events and the PC's raw IR bursts."""
 
     def __init__(self, scenario, profile: str | None = None) -> None:
+        # the Python path's medium: its ir/tx samples and the boards' UARTs are what is watched
+        # (the fleet core's medium is held to it in test_core.py)
+        scenario = dataclasses.replace(scenario, program=scenario.program or "model")
         super().__init__("irmed", scenario, profile)
         self.pc_bursts: list[dict] = []
         self.bus.subscribe_json(self.bus.keys.ir_rx("pc"), lambda k, d: self.pc_bursts.append(d))

@@ -198,7 +198,7 @@ def test_v2_step_time_is_the_slot_schedule(rigs):
 
 
 # --- thesis-2009 -----------------------------------------------------------------------------------
-THESIS_SC = ('profile = "thesis-2009"\nfixed = [0, 0]\n'
+THESIS_SC = ('profile = "thesis-2009"\nprogram = "model"\nfixed = [0, 0]\n'
              "[[modules]]\nid = 1\ncell = [0, 0]\n"  # the reference
              "[[modules]]\nid = 2\ncell = [0, 1]\norientation = 2\n"  # across its side 2
              "[[modules]]\nid = 3\ncell = [1, 0]\n"  # across its side 3

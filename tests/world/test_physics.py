@@ -330,8 +330,10 @@ def test_random_actuation_never_overlaps_or_moves_the_fixed_module(growth, orien
     cells = grown(growth)
     ids = [f"m{k}" for k in range(len(cells))]
     obstacles = [] if obstacle in cells else [obstacle]
-    judge = MotionJudge([ModuleSpec(i, c, orients[k], fixed=(k == 0))
-                         for k, (i, c) in enumerate(zip(ids, cells))], obstacles)
+    specs = [ModuleSpec(i, c, orients[k], fixed=(k == 0)) for k, (i, c) in enumerate(zip(ids, cells))]
+    judge = MotionJudge(specs, obstacles)
+    long_way = MotionJudge(specs, obstacles)  # on_actuators without its short way: the same outcomes
+    long_way.quick = False
     fixed_cell = cells[0]
     t_base = 0
     started: set[str] = set()
@@ -368,11 +370,16 @@ def test_random_actuation_never_overlaps_or_moves_the_fixed_module(growth, orien
         events = sorted((t, n, key.split(":")[-1], j, m) for key, tl in tls.items()
                         for n, (t, j, m) in enumerate(tl))
         for t, _, who, j, m in events:
-            for o in judge.on_actuators(who, max(t, judge.now_ns), j, m):
+            outcomes = judge.on_actuators(who, max(t, judge.now_ns), j, m)
+            assert outcomes == long_way.on_actuators(who, max(t, long_way.now_ns), j, m)
+            for o in outcomes:
                 check_outcome(o, started)
             check_world(judge, fixed_cell, ids[0], obstacles)
         t_base = max(t_base, events[-1][0]) + 5 * TICK_NS
-    for o in judge.advance(t_base + ROTATION_NS + TICK_NS):
+    outcomes = judge.advance(t_base + ROTATION_NS + TICK_NS)
+    assert outcomes == long_way.advance(t_base + ROTATION_NS + TICK_NS)
+    assert judge.occupancy() == long_way.occupancy()
+    for o in outcomes:
         check_outcome(o, started)
     check_world(judge, fixed_cell, ids[0], obstacles)
 

@@ -29,10 +29,11 @@ def _frames(path) -> list[tuple]:
 
 @pytest.fixture(scope="module")
 def one_process_path(tmp_path_factory):
-    """thesis-12 with the complete planner in one process: the reference run."""
+    """thesis-12 with the complete planner in one process: the reference run, on the Python
+    path the shards take (there every receiver's decoded bytes are ``ir/rx`` samples)."""
     path = tmp_path_factory.mktemp("one") / "one.mcap"
     assert main(["run", "thesis-12", "--planner", "complete", "--clock", "virtual", "--isolated",
-                 "--record", str(path)]) == 0
+                 "--program", "model", "--record", str(path)]) == 0
     return path
 
 
