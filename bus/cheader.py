@@ -239,6 +239,12 @@ def header() -> str:
             f"#define BYTE_WALTER_BUSY 0x{codec.WALTER_BUSY[0]:02x}",
             f"#define TXT_WLK {_c_string(codec.WALTER_LOG_TAG)}",
             f"#define WALTER_NO_POSITION {codec.WALTER_NO_POSITION}",
+            f"#define WALTER_TABLE_CAPACITY {codec.WALTER_TABLE_CAPACITY}",
+            f"#define WALTER_REQUEST_LEN {codec.WALTER_REQUEST_LEN}",
+            f"#define WALTER_ANSWER_LEN {codec.WALTER_ANSWER_LEN}",
+            f"#define WALTER_MODE_CW {codec.WALTER_MODE_CW}",
+            f"#define WALTER_MODE_DELAY_SHIFT {codec.WALTER_MODE_DELAY_SHIFT}",
+            f"#define WALTER_MODE_DELAY_MAX {codec.WALTER_MODE_DELAY_MAX}",
             *(f"#define WALTER_OP_{op.name} {int(op)}" for op in WalterOp),
             *(f"#define WALTER_FLAG_{f.name} {int(f)}" for f in WalterFlag),
             "/* what an image on the wrong board, or a board of unknown kind, prints (bus/chip.py) */"]

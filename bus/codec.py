@@ -72,6 +72,11 @@ WALTER_ANSWER_TAG = b"w"
 WALTER_LOG_TAG = b"WLK"
 WALTER_BUSY = b"W"
 WALTER_NO_POSITION = 255
+WALTER_REQUEST_LEN = 4
+WALTER_ANSWER_LEN = 3
+#: Goal table entries a module holds (positions 0..63: n up to 65), three bytes each of the
+#: comm board's RAM (docs/firmware.md); entries beyond are not kept.
+WALTER_TABLE_CAPACITY = 64
 
 
 class Link(str, Enum):
@@ -156,8 +161,8 @@ def _grammar(link: Link) -> tuple[Template, ...]:
         for p in _prefixes():
             t.append(Template(Kind.MSG1, p + START, MSG1_LEN - 1))
         t.extend(Template(Kind.PROBE, bytes([b])) for b in PROBE_BYTES)
-        t.append(Template(Kind.WALTER_REQUEST, WALTER_REQUEST_TAG, 3))
-        t.append(Template(Kind.WALTER_ANSWER, WALTER_ANSWER_TAG, 2))
+        t.append(Template(Kind.WALTER_REQUEST, WALTER_REQUEST_TAG, WALTER_REQUEST_LEN - 1))
+        t.append(Template(Kind.WALTER_ANSWER, WALTER_ANSWER_TAG, WALTER_ANSWER_LEN - 1))
     elif link is Link.DEBUG:
         for p in _prefixes(role_allowed=False):
             for name in ("CTR_Ready", "COMM_Ready", "CTR_LST"):

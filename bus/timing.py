@@ -104,7 +104,8 @@ THESIS_ROTATION_TIMING = (8, 4, 9)
 # -- v2 distributed reconfiguration: one Walter round (docs/protocol.md), ticks from the beat --
 # The parts below make the round's layout (the walter_* functions); the programs wait for the
 # layout's instants (WALTER_*_AT in the header), never for a part alone.
-#: A side window: select the side, settle, the request (4 bytes) and its answer (3), a guard.
+#: A side window: select the side, settle, the request (4 bytes) and its answer (3), a guard
+#: (bus.codec.WALTER_REQUEST_LEN + WALTER_ANSWER_LEN).
 WALTER_MUX_SETTLE_TICKS = 2
 WALTER_SIDE_MSG_BYTES = 7
 WALTER_WINDOW_GUARD_TICKS = 3

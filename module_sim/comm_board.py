@@ -411,7 +411,7 @@ class CommBoard(Mcu):
     def listen(self) -> Program:
         u1 = self.uart1
         if self.profile.checked_frames:
-            msg = yield from read_frame(u1, codec.PC_FRAME_LEN)  # v2 reads the '#' too and resynchronises
+            msg = yield from read_frame(u1, codec.PC_FRAME_LEN)  # v2 reads the '#' too
             if msg is None:
                 return
         else:
@@ -579,7 +579,7 @@ class CommBoard(Mcu):
         if self.walter is None:
             return
         for at, (ex, ey, mode) in ((k, (x, y, m)), (k + 1, (x2, y2, m2))):
-            if ex or ey:  # x = y = 0: no entry (the odd last one)
+            if (ex or ey) and at < codec.WALTER_TABLE_CAPACITY:  # x = y = 0: no entry
                 self.walter.table[at] = Entry.of(ex - codec.COORD_OFFSET, ey - codec.COORD_OFFSET, mode)
 
     def _contacts(self) -> list[bool]:
@@ -595,7 +595,9 @@ class CommBoard(Mcu):
         """A control-board code this board sends itself, with its LED mirror (as ``dispatch``)."""
         yield from self.relay(code, list(args))
         for mirror in FUNCTIONS[code].led_mirror:
-            getattr(self, mirror)(*args)
+            shown = getattr(self, mirror)(*args)
+            if shown is not None:
+                yield from shown
 
     def WalterBeat(self, r_hi: int, r_lo: int) -> Program:
         """One round of Figure 10 (docs/protocol.md): decide at the beat, ask the neighbours in
@@ -650,7 +652,8 @@ class CommBoard(Mcu):
             op, who = heard
             if plan is not None and op is not WalterOp.HOLD:
                 continue  # a mover is nobody's substrate (it opens its own pin to a mover)
-            if op is not WalterOp.HOLD and pivots and not walter_pivots_apart(pivots[0][1], g):
+            if op is not WalterOp.HOLD and pivots and (
+                    len(pivots) == 2 or not walter_pivots_apart(pivots[0][1], g)):
                 continue  # two repelling sides side by side would drive this module itself
             yield Tx(u1, codec.encode_walter_answer(op))
             if op is WalterOp.HOLD:  # the pin at the end of the side facing the mover
