@@ -19,7 +19,7 @@ import threading
 from pathlib import Path
 
 from . import chip, codec, pins, rotations, timing
-from .functions import ACK_TIMEOUT, ACK_UNKNOWN, ARG_UNUSED, BY_NAME, FUNCTIONS, Board
+from .functions import ACK_TIMEOUT, ACK_UNKNOWN, ARG_UNUSED, BY_NAME, FUNCTIONS, Board, WalterFlag, WalterOp
 from .lattice import NEIGHBOUR_OFFSET, Cell, Direction, Joint, Side, move_rule
 
 from .errors import HexbenchError
@@ -150,6 +150,15 @@ def header() -> str:
         f"#define LOCALIZE_SLOT_TICKS {timing.localize_slot_ticks(timing.Baud.IR)}",
         f"#define LOCALIZE_WINDOW_TICKS {timing.localize_window_ticks(timing.Baud.IR)}",
         f"#define LOCALIZE_STEP_TICKS {timing.localize_step_ticks(timing.Baud.IR)}",
+        "/* a Walter round at the IR baud rate (ticks from the beat), its rotation timing */",
+        f"#define WALTER_MUX_SETTLE_TICKS {timing.WALTER_MUX_SETTLE_TICKS}",
+        f"#define WALTER_HOLD_END_AT {timing.walter_hold_end_at(timing.Baud.IR)}",
+        f"#define WALTER_WINDOW_TICKS {timing.walter_window_ticks(timing.Baud.IR)}",
+        f"#define WALTER_ACTUATION_AT {timing.walter_actuation_at(timing.Baud.IR)}",
+        f"#define WALTER_LOG_AT {timing.walter_log_at(timing.Baud.IR)}",
+        f"#define WALTER_BUSY_AT {timing.walter_busy_at(timing.Baud.IR)}",
+        f"#define WALTER_ROUND_TICKS {timing.walter_round_ticks(timing.Baud.IR)}",
+        "#define WALTER_ROTATION_TICKS {" + ", ".join(map(str, timing.THESIS_ROTATION_TIMING)) + "}",
         f"#define UART0_UBRR {ubrr(timing.Baud.UART0)}",
         f"#define DEBUG_UBRR {ubrr(timing.Baud.DEBUG)}",
         f"#define IR_UBRR {ubrr(timing.Baud.IR)}",
@@ -225,6 +234,19 @@ def header() -> str:
             f"#define COORD_LIMIT {codec.COORD_LIMIT['v2']}",
             f"#define PC_FRAME_LEN {codec.PC_FRAME_LEN}", f"#define RELAY_FRAME_LEN {codec.RELAY_FRAME_LEN}",
             f"#define MSG1_LEN {codec.MSG1_LEN}",
+            f"#define BYTE_WALTER_REQUEST 0x{codec.WALTER_REQUEST_TAG[0]:02x}",
+            f"#define BYTE_WALTER_ANSWER 0x{codec.WALTER_ANSWER_TAG[0]:02x}",
+            f"#define BYTE_WALTER_BUSY 0x{codec.WALTER_BUSY[0]:02x}",
+            f"#define TXT_WLK {_c_string(codec.WALTER_LOG_TAG)}",
+            f"#define WALTER_NO_POSITION {codec.WALTER_NO_POSITION}",
+            f"#define WALTER_TABLE_CAPACITY {codec.WALTER_TABLE_CAPACITY}",
+            f"#define WALTER_REQUEST_LEN {codec.WALTER_REQUEST_LEN}",
+            f"#define WALTER_ANSWER_LEN {codec.WALTER_ANSWER_LEN}",
+            f"#define WALTER_MODE_CW {codec.WALTER_MODE_CW}",
+            f"#define WALTER_MODE_DELAY_SHIFT {codec.WALTER_MODE_DELAY_SHIFT}",
+            f"#define WALTER_MODE_DELAY_MAX {codec.WALTER_MODE_DELAY_MAX}",
+            *(f"#define WALTER_OP_{op.name} {int(op)}" for op in WalterOp),
+            *(f"#define WALTER_FLAG_{f.name} {int(f)}" for f in WalterFlag),
             "/* what an image on the wrong board, or a board of unknown kind, prints (bus/chip.py) */"]
     for (image, found), text in codec.GUARD_TEXTS.items():
         out.append(f"#define TXT_GUARD_{image.upper()}_ON_{found.upper()} "

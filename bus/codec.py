@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any, Iterable
 
-from .functions import ARG_UNUSED, FUNCTIONS, Function, lookup
+from .functions import ARG_UNUSED, FUNCTIONS, Function, WalterFlag, WalterOp, lookup
 
 PREAMBLE = b"\n\r\n\r"
 EOL = b"\n\r"
@@ -65,6 +65,18 @@ COORD_OFFSET = 128
 #: |x| div 10 in the tens byte (0..12) so that it reaches what POS's x + 128 byte carries
 #: (-127..127, symmetric). Scenarios, plans and both programs are held to it.
 COORD_LIMIT = {"v2": 127, "thesis-2009": 99}
+#: v2 Walter rounds (docs/protocol.md): a mover's request and a neighbour's answer on the side
+#: link (tag, op, complement of op), the round's debug line, the busy byte on the centre channel.
+WALTER_REQUEST_TAG = b"W"
+WALTER_ANSWER_TAG = b"w"
+WALTER_LOG_TAG = b"WLK"
+WALTER_BUSY = b"W"
+WALTER_NO_POSITION = 255
+WALTER_REQUEST_LEN = 4
+WALTER_ANSWER_LEN = 3
+#: Goal table entries a module holds (positions 0..63: n up to 65), three bytes each of the
+#: comm board's RAM (docs/firmware.md); entries beyond are not kept.
+WALTER_TABLE_CAPACITY = 64
 
 
 class Link(str, Enum):
@@ -95,6 +107,10 @@ class Kind(str, Enum):
     SELF_TEST = "self-test"
     BOARD_GUARD = "board-guard"
     MSG1 = "msg1"
+    WALTER_REQUEST = "walter-request"
+    WALTER_ANSWER = "walter-answer"
+    WALTER_LOG = "walter-log"
+    WALTER_BUSY = "walter-busy"
     PROBE = "probe"
     NOISE = "noise"
 
@@ -140,10 +156,13 @@ def _grammar(link: Link) -> tuple[Template, ...]:
         t.extend(_guard_templates())
         t.append(Template(Kind.SIDE_REPORT, b"Side: ", 1, EOL))
         t.append(Template(Kind.YREF_REPORT, b"Yref: ", 1, EOL))
+        t.append(Template(Kind.WALTER_BUSY, WALTER_BUSY))
     elif link is Link.SIDE:
         for p in _prefixes():
             t.append(Template(Kind.MSG1, p + START, MSG1_LEN - 1))
         t.extend(Template(Kind.PROBE, bytes([b])) for b in PROBE_BYTES)
+        t.append(Template(Kind.WALTER_REQUEST, WALTER_REQUEST_TAG, WALTER_REQUEST_LEN - 1))
+        t.append(Template(Kind.WALTER_ANSWER, WALTER_ANSWER_TAG, WALTER_ANSWER_LEN - 1))
     elif link is Link.DEBUG:
         for p in _prefixes(role_allowed=False):
             for name in ("CTR_Ready", "COMM_Ready", "CTR_LST"):
@@ -153,6 +172,7 @@ def _grammar(link: Link) -> tuple[Template, ...]:
         t.append(Template(Kind.ACTUATORS, ACT_TAG, 3, EOL))
         t.append(Template(Kind.COIL_LIMIT, LIM_TAG, 3, EOL))
         t.append(Template(Kind.SELF_TEST, TST_TAG, 2, EOL))
+        t.append(Template(Kind.WALTER_LOG, WALTER_LOG_TAG, 4, EOL))
         t.extend(_guard_templates())
     return tuple(t)
 
@@ -229,6 +249,12 @@ def _view(link: Link, tpl: Template, raw: bytes) -> dict[str, Any]:
         return {"signal": chr(raw[0])}
     if k is Kind.PROBE:
         return {"byte": raw[0]}
+    if k in (Kind.WALTER_REQUEST, Kind.WALTER_ANSWER):
+        return walter_side_view(raw)
+    if k is Kind.WALTER_BUSY:
+        return {}
+    if k is Kind.WALTER_LOG:
+        return walter_log_view(raw[3:7])
     view, i = _prefix_view(raw)
     if k is Kind.BOARD_GUARD:
         image, found = tpl.label.split("-on-")
@@ -502,3 +528,76 @@ def encode_position(ident: int, x: int, y: int, yref: int, *, localized: bool, m
     return (PREAMBLE + role + POS_TAG
             + bytes([ident & 0xFF, x + COORD_OFFSET, y + COORD_OFFSET, yref % 6, flags])
             + EOL)
+
+
+# --- v2 Walter rounds (docs/protocol.md) ---------------------------------------------------
+def encode_walter_request(op: int, position: int) -> bytes:
+    """A mover's request on the side link: what it asks, and its position (who passes)."""
+    return WALTER_REQUEST_TAG + bytes([op, ~op & 0xFF, position & 0xFF])
+
+
+def encode_walter_answer(op: int) -> bytes:
+    """A neighbour's answer on the side link: the op it will do."""
+    return WALTER_ANSWER_TAG + bytes([op, ~op & 0xFF])
+
+
+def walter_side_op(body: bytes) -> int | None:
+    """The op of the two bytes after a side message's tag, or None if they do not check."""
+    op, check = body[0], body[1]
+    return op if check == ~op & 0xFF and op in WalterOp._value2member_map_ else None
+
+
+def walter_side_view(raw: bytes) -> dict[str, Any]:
+    op = walter_side_op(raw[1:3])
+    view: dict[str, Any] = {"op": WalterOp(op).name.lower() if op is not None else None,
+                            "valid": op is not None}
+    if raw[:1] == WALTER_REQUEST_TAG:
+        view["position"] = raw[3]
+    return view
+
+
+#: A goal table entry's mode byte (``WalterGoal``): bit 0 CW, bits 1..4 the delay in rounds.
+WALTER_MODE_CW = 1
+WALTER_MODE_DELAY_SHIFT = 1
+WALTER_MODE_DELAY_MAX = 15
+
+
+def walter_mode(cw: bool, delay: int) -> int:
+    if not 0 <= delay <= WALTER_MODE_DELAY_MAX:
+        raise ValueError(f"a Walter delay is 0..{WALTER_MODE_DELAY_MAX} rounds, not {delay}")
+    return int(cw) | delay << WALTER_MODE_DELAY_SHIFT
+
+
+def walter_mode_view(mode: int) -> tuple[bool, int]:
+    """(CW, delay) of a goal table entry's mode byte."""
+    return bool(mode & WALTER_MODE_CW), mode >> WALTER_MODE_DELAY_SHIFT & WALTER_MODE_DELAY_MAX
+
+
+def encode_walter_goals(entries: list[tuple[int, int, bool, int]]) -> list[bytes]:
+    """``WalterGoal`` frames for a goal table in the module frame: entry k = (x, y, cw, delay)
+    of position k, two a frame; x = y = -128 (0 on the wire) marks no entry."""
+    frames = []
+    for k in range(0, len(entries), 2):
+        args = [k]
+        for x, y, cw, delay in entries[k:k + 2]:
+            args += [x + COORD_OFFSET, y + COORD_OFFSET, walter_mode(cw, delay)]
+        args += [0] * (7 - len(args))
+        frames.append(encode_command("WalterGoal", *args))
+    return frames
+
+
+def encode_walter_log(round_: int, flags: int, position: int, delay: int) -> bytes:
+    """The control board's debug line of a Walter round: ``"WLK"`` round flags position delay."""
+    return WALTER_LOG_TAG + bytes([round_ & 0xFF, flags & 0xFF, position & 0xFF, delay & 0xFF]) + EOL
+
+
+def walter_log_view(body: bytes) -> dict[str, Any]:
+    """Decode the four bytes after ``WLK``; the goal is entry ``position`` of the goal table."""
+    r, flags, position, delay = body[:4]
+    view: dict[str, Any] = {"round": r, "delay": delay,
+                            "position": None if position == WALTER_NO_POSITION else position}
+    for f in WalterFlag:
+        view[f.name.lower()] = bool(flags & f)
+    view["direction"] = ("CW" if flags & WalterFlag.CW else "CCW") if position != WALTER_NO_POSITION \
+        else None
+    return view

@@ -158,8 +158,48 @@ _DEFINED: tuple[Function, ...] = (
              (), Ack.ECHO, profile="v2",
              doc="each actuator in turn, briefly; the DIP id and the optical switches on the "
                  "debug UART"),
+    # --- protocol v2: distributed reconfiguration (Walter, Tsai & Amato; docs/protocol.md) ---
+    _com(51, "WalterSetup", (Arg("n", 2, 255, doc="modules"), Arg("plen", doc="|p|"),
+                             Arg("cost", 0, 2, doc="0, 1, 2 = more"),
+                             Arg("ax", doc="anchor x+128"), Arg("ay", doc="anchor y+128")),
+         "a new reconfiguration problem: n, the substrate path's length and cost, the anchor "
+         "(where I meets G)", profile="v2"),
+    _com(52, "WalterGoal", (Arg("k", doc="entry"), Arg("x", doc="x+128"), Arg("y", doc="y+128"),
+                            Arg("m", doc="bit 0 CW, bits 1..4 delay"), Arg("x2", doc="x+128"),
+                            Arg("y2", doc="y+128"), Arg("m2", doc="as m")),
+         "goal table entries k and k+1: the goal, direction and delay of position k", profile="v2"),
+    _com(53, "WalterBeat", (Arg("r_hi"), Arg("r_lo")),
+         "round r starts now (r = 0: leave the distributed mode)", profile="v2"),
+    Function(17, "WalterLog", Board.CONTROL,
+             (Arg("round"), Arg("flags"), Arg("position"), Arg("delay")), (), Ack.ECHO,
+             profile="v2", doc="the round's line on the debug UART (WLK)"),
+    Function(18, "STwo", Board.CONTROL,
+             (Arg("dirs", 0, 3, doc="bit 0: the first CW, bit 1: the second CW"),
+              Arg("i1", 1, 6, True), Arg("i2", 1, 6, True)), ("LSTwo",), Ack.ECHO, profile="v2",
+             doc="substrate of two rotations at once (SCW/SCCW(i1) and SCW/SCCW(i2), thesis "
+                 "timing): two movers turn about this module in one Walter round"),
+    _com(54, "LSTwo", (Arg("dirs", 0, 3), Arg("i1", 1, 6, True), Arg("i2", 1, 6, True)),
+         "LED mirror of STwo", profile="v2"),
     Function(126, "Timeout", Board.RESERVED, doc="'~': a receive timed out"),
 )
+
+
+class WalterOp(IntEnum):
+    """What a mover asks a neighbour over the side link in a Walter round (docs/protocol.md)."""
+
+    HOLD = 1  # open the pin that holds me during the actuation
+    PIVOT_CW = 2  # be my substrate: SCW about the pivot next to me
+    PIVOT_CCW = 3  # be my substrate: SCCW
+
+
+#: Walter log line flags (the ``flags`` byte of ``WalterLog``).
+class WalterFlag(IntEnum):
+    FREE = 1
+    MOVED = 2
+    CW = 4
+    STOPPED = 8
+    ANCHOR = 16
+    UNANSWERED = 32
 
 
 #: Every defined code by its thesis name: ``FunctionCode.MCW == 21``. Generated from

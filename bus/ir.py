@@ -99,50 +99,72 @@ def garble_fixes(dst: str, with_src: str, fixes: list[list[Any]]) -> bytes:
     return _dumps({"type": "garble", "dst": dst, "with": with_src, "fixes": fixes}).encode()
 
 
+#: The event a receiver puts when a correction of the medium comes after its byte's stop bit.
+IR_CONFLICT = "ir-conflict"
+
+
 class IrReceiver:
     """Turns ``ir/rx`` messages into bytes at their stop bits.
 
     ``deliver(transceiver, byte, start_ns, corrupt)`` runs on the clock thread at the
-    moment each byte completes.
+    moment each byte completes. A correction (``garble``, ``cut``) of a byte whose stop bit
+    has passed cannot change what was delivered: it is a conflict, counted in
+    :attr:`conflicts` and told to ``on_conflict(src, burst, index)`` (the medium's lookahead
+    contract, docs/bus.md "Shards", makes it impossible; a broken one shows here).
     """
 
-    def __init__(self, clock: Clock, deliver: Callable[[int, int, int, bool], None]) -> None:
+    def __init__(self, clock: Clock, deliver: Callable[[int, int, int, bool], None],
+                 on_conflict: Callable[[str, int, int], None] | None = None) -> None:
         self.clock = clock
         self.deliver = deliver
+        self.on_conflict = on_conflict
+        self.conflicts = 0
         self._pending: dict[tuple[str, int], list[list[Any]]] = {}
         self._line_busy: dict[int, int] = {}  # transceiver -> end of the last byte delivered
+
+    def _late(self, src: str, burst: int, index: int) -> None:
+        self.conflicts += 1
+        if self.on_conflict is not None:
+            self.on_conflict(src, burst, index)
+
+    def _fix(self, src: str, burst: int, i: int, value: int) -> None:
+        entries = self._pending.get((src, burst))
+        if entries is None:  # every byte of the burst is delivered already
+            self._late(src, burst, i)
+        elif i < len(entries):  # (past the end: a cut took the byte off the air)
+            if entries[i][4] is None:  # delivered already
+                self._late(src, burst, i)
+            else:
+                entries[i][1] = value
+                entries[i][3] = True
 
     def on_message(self, key: str, payload: bytes) -> None:
         d = json.loads(payload)
         if d.get("type") == "cut":  # the transmitter's multiplexer moved on mid-burst
-            entries = self._pending.get((d["src"], d["burst"]))
-            if entries:
-                i = d["index"]
-                if d.get("value") is not None and i < len(entries):
-                    entries[i][1] = d["value"]
-                    entries[i][3] = True
-                    i += 1
-                for e in entries[i:]:
+            src, burst = d["src"], d["burst"]
+            entries = self._pending.get((src, burst))
+            i = d["index"]
+            if entries is None:  # (a burst that never came here: light after a move)
+                return
+            if d.get("value") is not None and i < len(entries):
+                self._fix(src, burst, i, d["value"])
+                i += 1
+            for n, e in enumerate(entries[i:], i):
+                if e[4] is None:
+                    self._late(src, burst, n)
+                else:
                     e[4].cancel()
-                del entries[i:]
-                if not entries:
-                    del self._pending[(d["src"], d["burst"])]
+            del entries[i:]
+            if not entries:
+                del self._pending[(src, burst)]
             return
         if d.get("type") == "garble":
-            pending = self._pending
             if "fixes" in d:
                 for src, burst, i, v in d["fixes"]:
-                    entries = pending.get((src, burst))
-                    if entries and i < len(entries):
-                        entries[i][1] = v
-                        entries[i][3] = True
+                    self._fix(src, burst, i, v)
                 return
-            entries = pending.get((d["src"], d["burst"]))
-            if entries:
-                for i, v in zip(d["index"], d["values"]):
-                    if i < len(entries):
-                        entries[i][1] = v
-                        entries[i][3] = True
+            for i, v in zip(d["index"], d["values"]):
+                self._fix(d["src"], d["burst"], i, v)
             return
         data = bytes.fromhex(d["data"])
         rx = d["rx_transceiver"]
@@ -160,7 +182,9 @@ class IrReceiver:
         entries = self._pending.get(k)
         if entries is None:
             return
-        start, value, transceiver, bad, _, end = entries[n]
+        entry = entries[n]
+        start, value, transceiver, bad, _, end = entry
+        entry[4] = None  # decided: a correction from now on comes too late
         if n == len(entries) - 1:
             del self._pending[k]
         # Two garbled bytes overlapping on one transceiver are one byte on the UART line:

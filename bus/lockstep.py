@@ -20,16 +20,24 @@ parallel discrete-event simulation does:
   after it was put. So what it causes must lie at least ``W`` after it (the IR medium's light
   has a byte time: 33.3 ms at 300 baud), and its handler must act on the times it carries,
   not on the time it is handled. Then the run gives the frames the one-process run gives.
+* **A participant that decodes runs behind.** Light that several processes send to one
+  receiver collides there, and a byte's value is final only once every byte overlapping it is
+  known, which a window later may be after its stop bit. A participant given a lag of one
+  window (``lags``) ends its window ``k`` only with the others' words on ``k + 1``: their
+  samples of window ``k + 1`` are handled at its start, before their time (light acts on the
+  times it carries), and its own reach them two windows late at most. With windows of at most
+  half a byte time, light still arrives before its first byte ends either way.
 * **Liveness.** Every participant holds a zenoh liveliness token. One that vanishes (its
   process killed, its link cut) ends the others at the barrier of the window they are in,
   with :class:`PeerLost` naming it; one that stays silent ends them after ``timeout_s``.
 * The clock does it all: :meth:`LockstepClock.run` crosses a window's end only through the
   barrier, so code that drives a clock (the planner's ``clock.run(until=...)``) runs
   unchanged. All participants stop at the same boundary: the end of the window in which
-  one of them called :meth:`Lockstep.finish`.
+  one of them called :meth:`Lockstep.finish` (one that runs behind or ahead: at the end of
+  its own window of that moment).
 
 The cost per window is one small sample from each participant to each other and a wait for
-the slowest: with ``W`` = 30 ms and a fleet running near real time that is ~33 barriers per
+the slowest: with ``W`` = 16.7 ms and a fleet running near real time that is ~60 barriers per
 wall second.
 """
 
@@ -107,17 +115,20 @@ class LockstepClock(VirtualClock):
             self._held.setdefault(sender, []).append((None, (window,)))
             self._speakers.add(sender)
 
-    def release(self, at_ns: int, window: int | None = None) -> int:
+    def release(self, at_ns: int, window: int | None = None, ahead: dict[str, int] | None = None) -> int:
         """Time moves to ``at_ns`` (a window boundary) and the held samples are handled
         there, by sender, each sender's in arrival order: of a sender that said a word, those
-        before its word on ``window`` (its later ones wait for their own boundary); of one
-        that says none, all. Returns how many."""
+        before its word on ``window`` plus its ``ahead`` (windows it runs ahead of this
+        participant; its later ones wait for their own boundary); of one that says none, all.
+        Returns how many."""
         taken: dict[str, list[tuple[Callable[..., Any], tuple[Any, ...]]]] = {}
+        ahead = ahead or {}
         with self._lock:
             for sender, items in self._held.items():
                 upto = len(items)
                 if window is not None and sender in self._speakers:
-                    marks = [i for i, (fn, args) in enumerate(items) if fn is None and args[0] <= window]
+                    due = window + ahead.get(sender, 0)
+                    marks = [i for i, (fn, args) in enumerate(items) if fn is None and args[0] <= due]
                     upto = marks[-1] + 1 if marks else 0
                 taken[sender] = [item for item in items[:upto] if item[0] is not None]
                 del items[:upto]
@@ -143,7 +154,7 @@ class Lockstep:
     """
 
     def __init__(self, bus: Bus, name: str, peers: Iterable[str], window_ns: int, *,
-                 timeout_s: float = 60.0) -> None:
+                 timeout_s: float = 60.0, lags: dict[str, int] | None = None) -> None:
         if not isinstance(bus.clock, LockstepClock):
             raise TypeError("a lockstep participant needs a LockstepClock")
         if window_ns <= 0:
@@ -153,6 +164,9 @@ class Lockstep:
         self.peers = sorted({check_chunk(p, "participant") for p in peers} - {self.name})
         self.window_ns = window_ns
         self.timeout_s = timeout_s
+        # how many windows each peer runs ahead of this participant (lags: windows behind)
+        lag = lags or {}
+        self.ahead = {p: lag.get(self.name, 0) - lag.get(p, 0) for p in self.peers}
         self.window = 0  # the window this participant is in
         self.stopping = False
         self.released = 0  # samples from elsewhere handled at boundaries
@@ -228,7 +242,7 @@ class Lockstep:
         self.bus.put_remote(self._word_key, json.dumps(
             {"window": k, "stop": self.stopping, "sim_time_ns": end}).encode())
         others_stop = self._barrier(k)
-        self.released += self.clock.release(end, k)
+        self.released += self.clock.release(end, k, self.ahead)
         self.window = k + 1
         if self.stopping or others_stop:
             self.clock.ended = True
@@ -250,14 +264,16 @@ class Lockstep:
             self.finish()
 
     def _barrier(self, k: int) -> bool:
-        """Wait for every peer's word on window ``k``; whether one of them stops after it."""
+        """Wait for every peer's word on window ``k`` (plus the windows it runs ahead); whether
+        one of them stops after it."""
         deadline = time.monotonic() + self.timeout_s
         gone_since: float | None = None
+        ahead = self.ahead
         with self._cond:
             while True:
-                behind = [p for p in self.peers if self._said.get(p, -1) < k]
+                behind = [p for p in self.peers if self._said.get(p, -1) < k + ahead[p]]
                 if not behind:
-                    return any(s <= k for s in self._stops.values())
+                    return any(s <= k + ahead.get(p, 0) for p, s in self._stops.items())
                 gone = [p for p in behind if p in self._gone]
                 if gone and gone_since is None:
                     # a finished peer's token may go before its last word is taken here

@@ -67,6 +67,39 @@ def perform(name: str, i: int, t1: int, t2: int, t3: int, *,
             actions[op]()
 
 
+def two_substrates(dirs: int, i1: int, i2: int) -> list[tuple[str, int]]:
+    """``STwo``'s two substrate programs (SCW if its bit of ``dirs`` is set, else SCCW, about
+    body joint i), for :func:`perform_together`."""
+    return [("SCW" if dirs >> k & 1 else "SCCW", i) for k, i in enumerate((i1, i2))]
+
+
+def perform_together(rotations: list[tuple[str, int]], t1: int, t2: int, t3: int, *,
+                     actions: dict[str, Callable[..., None]], sccw_both_negative: bool = False
+                     ) -> Iterator[int]:
+    """Several rotations at once on one board (a substrate two movers turn about in the same
+    Walter round): every program has its waits t1, t2, t3 in the same places, so each phase
+    applies the steps of every program in turn, then waits once."""
+    phases: list[list[list[Step]]] = []
+    for name, _ in rotations:
+        segs: list[list[Step]] = [[]]
+        for step in steps(name, sccw_both_negative=sccw_both_negative):
+            if step[0] == "wait":
+                segs.append([])
+            else:
+                segs[-1].append(step)
+        phases.append(segs)
+    waits = (t1, t2, t3)
+    for k in range(len(waits) + 1):
+        for (_, i), segs in zip(rotations, phases):
+            for op, *arg in segs[k]:
+                if arg:
+                    actions[op](i + arg[0])
+                else:
+                    actions[op]()
+        if k < len(waits):
+            yield waits[k]
+
+
 class RotationArgs(NamedTuple):
     """Arguments ``mi`` (mobile) and ``si`` (substrate) of MCW/SCW, MCCW/SCCW and of
     the combined codes CW (67) and CCW (68)."""

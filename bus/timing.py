@@ -97,6 +97,30 @@ LOCALIZE_BYTE_TICKS = 10
 LOCALIZE_SLOT_BYTES = 15
 LOCALIZE_SLOT_GUARD_TICKS = 3
 
+#: The rotation timing (t1, t2, t3) of Appendix A's CW/CCW tests (spec §7), which the PC's
+#: ``Move`` and a Walter round's actuation both use.
+THESIS_ROTATION_TIMING = (8, 4, 9)
+
+# -- v2 distributed reconfiguration: one Walter round (docs/protocol.md), ticks from the beat --
+# The parts below make the round's layout (the walter_* functions); the programs wait for the
+# layout's instants (WALTER_*_AT in the header), never for a part alone.
+#: A side window: select the side, settle, the request (4 bytes) and its answer (3), a guard
+#: (bus.codec.WALTER_REQUEST_LEN + WALTER_ANSWER_LEN).
+WALTER_MUX_SETTLE_TICKS = 2
+WALTER_SIDE_MSG_BYTES = 7
+WALTER_WINDOW_GUARD_TICKS = 3
+#: After the last window, before the actuation: a JxOpen a mover relayed in the last window
+#: has left the control board's debug UART (its ACK and MSG lines, about 50 ms).
+WALTER_RELAY_GUARD_TICKS = 8
+#: Holders open their pin at the actuation's start and close it this much later: after the
+#: break-away (relay, t1 and 3 ticks: about 20 ticks), before the rotation's end.
+WALTER_HOLD_TICKS = 25
+#: The actuation: relay and debug lines (about 6 ticks), t1, the 220 ms rotation, the switches.
+WALTER_ACTUATION_TICKS = 45
+#: The log line's relay and the control board's printing of it, before the busy slot.
+WALTER_LOG_TICKS = 8
+WALTER_BUSY_GUARD_TICKS = 2
+
 
 class Baud(int, Enum):
     """Baud rates of the three kinds of link (spec §3, table of links)."""
@@ -134,3 +158,33 @@ def localize_window_ticks(baud: int) -> int:
 def localize_step_ticks(baud: int) -> int:
     """v2 localization: a step is 6 listener windows, one per side."""
     return 6 * localize_window_ticks(baud)
+
+
+def walter_window_ticks(baud: int) -> int:
+    """A Walter round's side window: settle, request and answer, guard."""
+    return (math.ceil(WALTER_SIDE_MSG_BYTES * byte_time_ns(baud) / TICK_NS)
+            + WALTER_MUX_SETTLE_TICKS + WALTER_WINDOW_GUARD_TICKS)
+
+
+def walter_actuation_at(baud: int) -> int:
+    """Ticks from the beat to the actuation: six windows and the relay guard."""
+    return 6 * walter_window_ticks(baud) + WALTER_RELAY_GUARD_TICKS
+
+
+def walter_hold_end_at(baud: int) -> int:
+    """Ticks from the beat to when holders close their pin again."""
+    return walter_actuation_at(baud) + WALTER_HOLD_TICKS
+
+
+def walter_log_at(baud: int) -> int:
+    return walter_actuation_at(baud) + WALTER_ACTUATION_TICKS
+
+
+def walter_busy_at(baud: int) -> int:
+    return walter_log_at(baud) + WALTER_LOG_TICKS
+
+
+def walter_round_ticks(baud: int) -> int:
+    """Ticks from the beat to the round's end: the busy byte has left every module."""
+    return (walter_busy_at(baud) + math.ceil(byte_time_ns(baud) / TICK_NS)
+            + WALTER_BUSY_GUARD_TICKS)

@@ -97,7 +97,7 @@ def _shard(args: argparse.Namespace, sc) -> int:
     from bus.lockstep import Lockstep, LockstepClock
     from bus.timing import NS_PER_S
     from module_sim.fleet import Fleet
-    from module_sim.shards import parse_shard, participants, shard_name, window_ns
+    from module_sim.shards import LAGS, parse_shard, participants, shard_name, window_ns
 
     try:
         k, n = parse_shard(args.shard)
@@ -113,7 +113,7 @@ def _shard(args: argparse.Namespace, sc) -> int:
     step = None
     try:
         fleet = Fleet(bus, sc, shard=(k, n), slack_ns=2 * w)
-        step = Lockstep(bus, shard_name(k), participants(n), w)
+        step = Lockstep(bus, shard_name(k), participants(n), w, lags=LAGS)
         fleet.power_up(freeze_gc=len(fleet.modules) >= 200)
         print(f"shard {k}/{n} of {sc.name}: modules {', '.join(f'm{i}' for i in sorted(fleet.modules))}; "
               f"window {w / 1e6:g} ms", flush=True)
@@ -121,7 +121,8 @@ def _shard(args: argparse.Namespace, sc) -> int:
         moves = sum(1 for o in fleet.world.mechanics.outcomes
                     if type(o).__name__ == "MoveCompleted" and o.module in fleet.world.own)
         print(f"shard {k}/{n}: ended at {clock.now_ns() / NS_PER_S:.3f} s sim after {step.window} windows; "
-              f"{moves} moves of its modules, {fleet.world.collisions} IR collisions", flush=True)
+              f"{moves} moves of its modules, {fleet.world.collisions} IR collisions, "
+              f"{sum(m.ir_conflicts for m in fleet.modules.values())} IR conflicts", flush=True)
     finally:
         if step is not None:
             step.close()

@@ -385,6 +385,9 @@ def _end(parts: RunParts, result) -> None:
     if parts.step is not None:
         parts.step.finish()  # every shard stops at this window's end
         failed = _end_shards(parts.shards)
+        print(f"lockstep: {parts.step.window} windows of {parts.step.window_ns / 1e6:g} ms; "
+              f"{parts.service.pc.conflicts} IR conflicts at the PC (corrections after their "
+              "byte's stop bit)", flush=True)
     elif parts.fleet is not None:
         parts.fleet.world.mechanics.publish_run_energy()
         if not parts.bus.clock.drain(timeout_s=DRAIN_S):
@@ -405,14 +408,14 @@ def _start_shards(args: argparse.Namespace, bus: Bus, scenario, n: int, stack: c
     import tempfile
 
     from bus.lockstep import Lockstep
-    from module_sim.shards import PLANNER, participants, window_ns
+    from module_sim.shards import LAGS, PLANNER, participants, window_ns
     from module_sim.world import World
 
     children: list[subprocess.Popen] = []
     stack.callback(_stop_shards, children)
     w = window_ns(scenario.ir_baud)
     World(bus, scenario, own=set(), pc=True, physics=False, slack_ns=2 * w)  # light to the PC
-    step = Lockstep(bus, PLANNER, participants(n), w)
+    step = Lockstep(bus, PLANNER, participants(n), w, lags=LAGS)
     stack.callback(step.close)
     endpoints = args.connect or [ep.replace("0.0.0.0", "127.0.0.1") for ep in args.listen]
     for k in range(n):

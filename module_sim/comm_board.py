@@ -12,8 +12,8 @@ from typing import Callable
 from bus import codec, rotations
 from bus.rotations import orientation_after
 from bus.clock import Clock
-from bus.functions import ACK_UNKNOWN, FUNCTIONS, Board, FunctionCode as F
-from bus.lattice import Cell, Direction, Joint, Side, body_to_global, move_rule
+from bus.functions import ACK_UNKNOWN, FUNCTIONS, Board, FunctionCode as F, WalterOp
+from bus.lattice import Cell, Direction, Joint, Side, body_to_global, global_to_body, move_rule
 from bus.pins import (COMM_PULLUPS, IR_SEL_A, IR_SEL_MASK, LED_JOINT, LED_NEG, LED_POS, Pin, fold,
                       ir_select_bits, ir_selected, port_masks)
 from bus.timing import (BOOT_CIRCLE_ROUNDS, BOOT_CIRCLE_TICKS, BOOT_FLASH_ROUNDS, BOOT_FLASH_TICKS,
@@ -21,12 +21,15 @@ from bus.timing import (BOOT_CIRCLE_ROUNDS, BOOT_CIRCLE_TICKS, BOOT_FLASH_ROUNDS
                         LOCALIZE_FAILED_CIRCLE_ROUNDS, LOCALIZE_FAILED_CIRCLE_TICKS,
                         LOCALIZE_LISTEN_TICKS, LOCALIZE_MUX_SETTLE_TICKS, SUBSTRATE_ACK_DELAY_TICKS,
                         THESIS_LOCALIZE_REPEATS, THESIS_LOCALIZE_ROUNDS, THESIS_LOCALIZE_SEND_TICKS,
-                        YREF_FLASH_TICKS, YREF_SHOWS, Baud, localize_slot_ticks,
-                        localize_step_ticks, localize_window_ticks)
+                        THESIS_ROTATION_TIMING, WALTER_MUX_SETTLE_TICKS, YREF_FLASH_TICKS, YREF_SHOWS,
+                        Baud, localize_slot_ticks, localize_step_ticks, localize_window_ticks,
+                        walter_actuation_at, walter_busy_at, walter_hold_end_at, walter_log_at,
+                        walter_window_ticks)
 
 from .avr import TIMEOUT, Delay, Mcu, Program, Rx, Tx, Uart
 from .framing import read_frame
 from .profiles import Profile
+from .walter import Entry, WalterState, walter_pivots_apart
 
 _STAR, _R, _L = ord("*"), ord("R"), ord("L")
 #: Relay frames of these functions carry 0, not 'N', as their first argument (Appendix A).
@@ -62,6 +65,8 @@ class CommBoard(Mcu):
         self.addressed = False  # selected by id or cell (not by a broadcast)
         self.v2_active = False  # a Select has been seen since power-up
         self.mux_changed_at = 0
+        #: v2 distributed reconfiguration: the problem and Figure 10's state (module_sim.walter)
+        self.walter: WalterState | None = None
 
     # -- IR multiplexer (Table 3-5) -------------------------------------------------------
     @property
@@ -206,6 +211,14 @@ class CommBoard(Mcu):
                    "close_all": self.JointOffAll, "off_all": self._magnet_leds_off}
         for ticks in rotations.perform(name, i, t1, t2, t3, actions=actions,
                                        sccw_both_negative=self.profile.sccw_both_negative):
+            yield Delay(ticks)
+
+    def LSTwo(self, dirs: int, i1: int, i2: int) -> Program:
+        """v2: the LED mirror of ``STwo`` (a substrate of two rotations at once)."""
+        actions = {"open": self.JointOn, "pos": self.SideOnP, "neg": self.SideOnN,
+                   "close_all": self.JointOffAll, "off_all": self._magnet_leds_off}
+        for ticks in rotations.perform_together(rotations.two_substrates(dirs, i1, i2),
+                                                *THESIS_ROTATION_TIMING, actions=actions):
             yield Delay(ticks)
 
     def _magnet_leds_off(self) -> None:
@@ -398,7 +411,7 @@ class CommBoard(Mcu):
     def listen(self) -> Program:
         u1 = self.uart1
         if self.profile.checked_frames:
-            msg = yield from read_frame(u1, codec.PC_FRAME_LEN)  # v2 reads the '#' too and resynchronises
+            msg = yield from read_frame(u1, codec.PC_FRAME_LEN)  # v2 reads the '#' too
             if msg is None:
                 return
         else:
@@ -557,3 +570,140 @@ class CommBoard(Mcu):
         yield Tx(self.uart1, codec.encode_position(self.id, self.X, self.Y, self.Yref,
                                                    localized=bool(self.L), mobile=bool(self.M),
                                                    substrate=bool(self.S), role=self.role))
+
+    # -- v2 distributed reconfiguration (Walter, Tsai & Amato; docs/protocol.md) ------------
+    def WalterSetup(self, n: int, plen: int, cost: int, ax: int, ay: int) -> None:
+        self.walter = WalterState(n, plen, cost, Cell(ax - codec.COORD_OFFSET, ay - codec.COORD_OFFSET))
+
+    def WalterGoal(self, k: int, x: int, y: int, m: int, x2: int, y2: int, m2: int) -> None:
+        if self.walter is None:
+            return
+        for at, (ex, ey, mode) in ((k, (x, y, m)), (k + 1, (x2, y2, m2))):
+            if (ex or ey) and at < codec.WALTER_TABLE_CAPACITY:  # x = y = 0: no entry
+                self.walter.table[at] = Entry.of(ex - codec.COORD_OFFSET, ey - codec.COORD_OFFSET, mode)
+
+    def _contacts(self) -> list[bool]:
+        """The optical switches in the global frame: [s-1] = a neighbour across global side s."""
+        here = self.neighbours()
+        out = [False] * 6
+        for body in Side:
+            if here[body - 1]:
+                out[body_to_global(body, self.Yref) - 1] = True
+        return out
+
+    def _relay_mirrored(self, code: int, *args: int) -> Program:
+        """A control-board code this board sends itself, with its LED mirror (as ``dispatch``)."""
+        yield from self.relay(code, list(args))
+        for mirror in FUNCTIONS[code].led_mirror:
+            shown = getattr(self, mirror)(*args)
+            if shown is not None:
+                yield from shown
+
+    def WalterBeat(self, r_hi: int, r_lo: int) -> Program:
+        """One round of Figure 10 (docs/protocol.md): decide at the beat, ask the neighbours in
+        the six side windows (or answer them), actuate together at the round's instant, log,
+        and say on the centre channel whether this module is still on its way."""
+        w, u1 = self.walter, self.uart1
+        round_ = r_hi << 8 | r_lo
+        if round_ == 0:
+            self.walter = None
+        if w is None or round_ == 0 or not self.L:
+            return
+        t0 = self.tick_count()
+        baud = u1.baud
+
+        def until(ticks: int) -> int:
+            return t0 + ticks - self.tick_count()
+
+        def left(ticks: int) -> int:
+            return max(1, until(ticks))
+
+        contacts = self._contacts()
+        plan = w.decide(round_, Cell(self.X, self.Y), contacts)
+        requests = plan.requests() if plan is not None else {}
+        window = walter_window_ticks(baud)
+        answered = True
+        pivots: list[tuple[WalterOp, Side]] = []  # asked to be a substrate: op, mover's side
+        opened = False  # a pin of its own opened for a neighbour that moves
+        for g in Side:
+            end = g * window
+            op = requests.get(g) if answered else None
+            if op is not None:  # ask the neighbour across global side g
+                yield Delay(until((g - 1) * window))
+                self.IrSel(global_to_body(g, self.Yref))
+                yield Delay(until((g - 1) * window + WALTER_MUX_SETTLE_TICKS))
+                yield Tx(u1, codec.encode_walter_request(op, w.position))
+                got = yield from self._walter_side(codec.WALTER_ANSWER_TAG[0], left, end, 2)
+                if got is None or got[0] != op:
+                    answered = False
+                elif op is WalterOp.HOLD:  # and open its own pin on that side
+                    yield from self._relay_mirrored(F.JxOpen, int(Joint.of(g + 1 - self.Yref)))
+                    opened = True
+                continue
+            # listen for a mover across global side g + 3 (it sends on its side g)
+            facing = Side.of(g + 3)
+            if not contacts[facing - 1]:
+                continue
+            yield Delay(until((g - 1) * window))
+            self.IrSel(global_to_body(facing, self.Yref))
+            heard = yield from self._walter_side(codec.WALTER_REQUEST_TAG[0], left, end, 3)
+            if heard is None:
+                continue
+            op, who = heard
+            if plan is not None and op is not WalterOp.HOLD:
+                continue  # a mover is nobody's substrate (it opens its own pin to a mover)
+            if op is not WalterOp.HOLD and pivots and (
+                    len(pivots) == 2 or not walter_pivots_apart(pivots[0][1], g)):
+                continue  # two repelling sides side by side would drive this module itself
+            yield Tx(u1, codec.encode_walter_answer(op))
+            if op is WalterOp.HOLD:  # the pin at the end of the side facing the mover
+                yield from self._relay_mirrored(F.JxOpen, int(Joint.of(facing + 1 - self.Yref)))
+                opened = True
+            else:
+                pivots.append((op, g))
+                w.passed(op, who)
+        self.IrSel(0)
+        w.unanswered = plan is not None and not answered
+        yield Delay(until(walter_actuation_at(baud)))
+        if plan is not None and answered:
+            mi = int(Joint.of(plan.joint - self.Yref))
+            code = F.MCW if plan.cw else F.MCCW
+            yield from self._rotate(code, 0, True, mi, *THESIS_ROTATION_TIMING)
+            w.after_move(Cell(self.X, self.Y))
+            self._moved(mi, plan.cw)
+        elif pivots:
+            # the pivot in this body: the mover's joint j (g for CW, g + 1 for CCW) - Yref
+            turns = [(op is WalterOp.PIVOT_CW,
+                      int(Joint.of((g if op is WalterOp.PIVOT_CW else g + 1) - self.Yref)))
+                     for op, g in pivots]
+            if len(turns) == 1:
+                cw, si = turns[0]
+                yield from self._rotate(0, F.SCW if cw else F.SCCW, False, si, *THESIS_ROTATION_TIMING)
+            else:
+                dirs = sum(int(cw) << k for k, (cw, _) in enumerate(turns))
+                yield from self._relay_mirrored(F.STwo, dirs, turns[0][1], turns[1][1])
+        elif opened:  # a rotation ends with every joint closed; a holder closes them itself
+            yield Delay(until(walter_hold_end_at(baud)))
+            yield from self._relay_mirrored(F.JxCloseAll)
+        yield Delay(until(walter_log_at(baud)))
+        w.settle(Cell(self.X, self.Y))
+        position = codec.WALTER_NO_POSITION if w.position is None else w.position
+        yield from self.relay(F.WalterLog, [round_ & 0xFF, w.flags(), position, w.delay])
+        yield Delay(until(walter_busy_at(baud)))
+        if not w.done():
+            yield Tx(u1, codec.WALTER_BUSY)
+
+    def _walter_side(self, tag: int, left: Callable[[int], int], end: int, n: int) -> Program:
+        """Wait until tick ``end`` for a side message: ``tag`` and ``n`` bytes. (op, the byte
+        after its check, if any) or None."""
+        u1 = self.uart1
+        b = yield Rx(u1, left(end))
+        while b not in (tag, TIMEOUT):
+            b = yield Rx(u1, left(end))
+        if b != tag:
+            return None
+        body = []
+        for _ in range(n):
+            body.append((yield Rx(u1, left(end))))
+        op = codec.walter_side_op(bytes(body))
+        return None if op is None else (WalterOp(op), body[2] if n > 2 else None)

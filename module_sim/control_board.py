@@ -14,8 +14,8 @@ from bus.functions import FUNCTIONS, Board
 from bus.pins import (CONTROL_PULLUPS, CONTROL_UART_PINS, DIP_PORT, JOINT, MAGNET_NEG, MAGNET_POS, Pin,
                       dip_id, dip_levels, fold, port_masks)
 from bus.timing import (BOOT_JTEST_ROUNDS, BOOT_JTEST_TICKS, BOOT_SETTLE_TICKS, FRAME_BYTE_TICKS,
-                        HANDSHAKE_RETRY_TICKS, MAGNET_ON_LIMIT_TICKS, SELFTEST_PULSE_TICKS, SOLENOID_ON_LIMIT_TICKS, TICK_NS,
-                        Baud)
+                        HANDSHAKE_RETRY_TICKS, MAGNET_ON_LIMIT_TICKS, SELFTEST_PULSE_TICKS,
+                        SOLENOID_ON_LIMIT_TICKS, THESIS_ROTATION_TIMING, TICK_NS, Baud)
 
 from .avr import Delay, Mcu, Program, Rx, Tx, Uart
 from .profiles import Profile
@@ -199,6 +199,18 @@ class ControlBoard(Mcu):
             self._off(pin)
             yield Delay(SELFTEST_PULSE_TICKS)
         yield Tx(self.uart1, codec.encode_self_test(dip_id(self.pin_in[DIP_PORT]), switches))
+
+    def WalterLog(self, round_: int, flags: int, position: int, delay: int) -> Program:
+        """v2: a Walter round's line on the debug UART (the comm board decided; docs/protocol.md)."""
+        yield Tx(self.uart1, codec.encode_walter_log(round_, flags, position, delay))
+
+    def STwo(self, dirs: int, i1: int, i2: int) -> Program:
+        """v2: the substrate of two rotations at once (two movers turn about it in one round)."""
+        actions = {"open": self.JxOpen, "pos": self.SxP, "neg": self.SxN,
+                   "close_all": self.JxCloseAll, "off_all": self.SxOffAll}
+        for ticks in rotations.perform_together(rotations.two_substrates(dirs, i1, i2), *THESIS_ROTATION_TIMING,
+                                                actions=actions):
+            yield Delay(ticks)
 
     def _rotation(self, name: str, i: int, t1: int, t2: int, t3: int) -> Program:
         """Run a rotation of :mod:`bus.rotations` on the relays and solenoids."""

@@ -12,7 +12,7 @@ from typing import Any, Callable
 
 from bus.codec import Link
 from bus.framer import Framer
-from bus.ir import Burst, IrReceiver, IrTransmitter, cut_masks
+from bus.ir import IR_CONFLICT, Burst, IrReceiver, IrTransmitter, cut_masks
 from bus.keys import board_endpoint, module_endpoint
 from bus.messages import Actuators, Switches
 from bus.pins import LED_JOINT, LED_NEG, LED_POS
@@ -90,7 +90,8 @@ class VirtualModule:
         # move the rest of one to another transceiver (docs/protocol.md, emulation notes)
         self._ir_flight: list[list] = []
         self._ir_k = self.comm.ir_transceiver
-        self._ir_in = IrReceiver(clock, self._ir_rx)
+        self._ir_in = IrReceiver(clock, self._ir_rx, lambda src, burst, index: bus.event(
+            self.comm.name, IR_CONFLICT, sender=src, burst=burst, index=index))
         for board in (self.ctrl, self.comm):
             board.on_ports = self._ports_changed
             for uart in (board.uart0, board.uart1):
@@ -229,6 +230,11 @@ class VirtualModule:
         from .firmware import input_pins
 
         return input_pins(mcu, self.switches if mcu is self.comm else None)
+
+    @property
+    def ir_conflicts(self) -> int:
+        """Corrections of the IR medium that came after their byte's stop bit (IrReceiver)."""
+        return self._ir_in.conflicts
 
     def core_wire(self, wire: int, data: bytes, starts: list[int], byte_ns: int) -> None:
         """Bytes the core put on one of this module's wires (numbered as in core.c)."""

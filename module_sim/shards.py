@@ -70,10 +70,12 @@ def cut_pairs(cells: Sequence[Cell], part: Sequence[int]) -> int:
 
 
 def window_ns(ir_baud: int) -> int:
-    """The lockstep window for a fleet whose shards exchange IR light at ``ir_baud``: 90 % of
-    a byte time, to the microsecond, so light handled a window late is still in the air
-    (30 ms at 300 baud, where a byte takes 33.3 ms)."""
-    return max(1, (byte_time_ns(ir_baud) * 9 + 5) // 10 // 1000) * 1000
+    """The lockstep window for a fleet whose shards exchange IR light at ``ir_baud``: half a
+    byte time, down to the microsecond (16.666 ms at 300 baud, where a byte takes 33.3 ms).
+    The planner's process, where the PC's receiver decodes what every shard's light made of
+    each other, runs a window behind the shards (:data:`LAGS`): its light reaches them two
+    windows late at most, still before its first byte ends."""
+    return max(1, byte_time_ns(ir_baud) // 2 // 1000) * 1000
 
 
 def parse_shard(text: str) -> tuple[int, int]:
@@ -98,3 +100,8 @@ def shard_name(k: int) -> str:
 
 
 PLANNER = "pc"
+#: Windows each participant runs behind (bus.lockstep): the planner's process decodes light from
+#: every shard at the PC's receiver, where bursts collide, so it runs one window behind and each
+#: byte's value is final before its stop bit. A module's receiver hears one transmitter (its
+#: facing neighbour, or the PC): nothing collides there.
+LAGS = {PLANNER: 1}

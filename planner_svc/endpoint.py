@@ -14,7 +14,7 @@ from typing import Callable, Iterator
 from bus.codec import Frame, Kind, Link, encode_command
 from bus.framer import Framer
 from bus.functions import Function
-from bus.ir import IrReceiver, IrTransmitter
+from bus.ir import IR_CONFLICT, IrReceiver, IrTransmitter
 from bus.keys import PC
 from bus.timing import NS_PER_S, byte_time_ns
 from bus.transport import Bus
@@ -83,11 +83,19 @@ class PcEndpoint:
         self.byte_ns = byte_time_ns(baud)
         self._tx = IrTransmitter(bus.put, bus.keys.ir_tx(name), name)
         self._framer = Framer(Link.CENTRE)
-        self._rx = IrReceiver(bus.clock, self._on_byte)
+        self._rx = IrReceiver(bus.clock, self._on_byte, self._on_conflict)
         self._line_free_at = 0
         self.received = History()
         self.listeners: list[Callable[[Received], None]] = []
         bus.subscribe(bus.keys.ir_rx(name), self._rx.on_message)
+
+    @property
+    def conflicts(self) -> int:
+        """Corrections of the IR medium that came after their byte's stop bit (IrReceiver)."""
+        return self._rx.conflicts
+
+    def _on_conflict(self, src: str, burst: int, index: int) -> None:
+        self.bus.event(self.name, IR_CONFLICT, sender=src, burst=burst, index=index)
 
     # -- sending --------------------------------------------------------------------------------
     def send(self, fn: str | int | Function, *args: int, **kwargs: int) -> int:

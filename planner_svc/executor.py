@@ -38,7 +38,7 @@ from bus.functions import FunctionCode as F
 from bus.lattice import Cell, Direction, Joint, Side
 from bus.messages import SERIAL_FAULT, SERIAL_RECOVERED, SERIAL_TX_LOST, Pose, WorldEvent
 from bus.rotations import orientation_after, rotation_arguments
-from bus.timing import NS_PER_S
+from bus.timing import NS_PER_S, THESIS_ROTATION_TIMING
 from bus.transport import Bus
 
 from .bringup import BringUp, BringUpError, Fleetview, ModuleState
@@ -46,7 +46,7 @@ from .endpoint import ExpectTimeout, PcEndpoint
 from .planners.rules import Move
 
 #: Thesis timing of a rotation (§7): t1 = 8, t2 = 4, t3 = 9 ticks.
-THESIS_TIMING = (8, 4, 9)
+THESIS_TIMING = THESIS_ROTATION_TIMING
 #: How long to wait after the Move ACKs for the world to report the arrival.
 SETTLE_S = 2.0
 #: How long each of a move's two ACKs is waited for.

@@ -133,5 +133,15 @@ typedef struct {
 const int8_t *rotation_steps(uint8_t code); /* code 21..24 or 56..59 */
 uint8_t co_rotation(rotation_t *r, const int8_t *steps, uint8_t i, const uint8_t t[3],
                     rotation_action act);
+#if HEXBOT_V2
+/* Two substrate programs at once (STwo, LSTwo; bus.rotations.perform_together): bit k of
+ * dirs = program k is SCW (else SCCW), about i[k]; each phase runs both, then waits. */
+typedef struct {
+    pt_t pt;
+    uint8_t phase, at[2];
+} rotation_two_t;
+uint8_t co_rotation_two(rotation_two_t *r, uint8_t dirs, const uint8_t i[2], const uint8_t t[3],
+                        rotation_action act);
+#endif
 
 #endif

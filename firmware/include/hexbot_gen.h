@@ -36,6 +36,15 @@
 #define LOCALIZE_SLOT_TICKS 54
 #define LOCALIZE_WINDOW_TICKS 324
 #define LOCALIZE_STEP_TICKS 1944
+/* a Walter round at the IR baud rate (ticks from the beat), its rotation timing */
+#define WALTER_MUX_SETTLE_TICKS 2
+#define WALTER_HOLD_END_AT 207
+#define WALTER_WINDOW_TICKS 29
+#define WALTER_ACTUATION_AT 182
+#define WALTER_LOG_AT 227
+#define WALTER_BUSY_AT 235
+#define WALTER_ROUND_TICKS 241
+#define WALTER_ROTATION_TICKS {8, 4, 9}
 #define UART0_UBRR 12
 #define DEBUG_UBRR 12
 #define IR_UBRR 207
@@ -52,6 +61,8 @@
 #define FC_SxOffAll 14
 #define FC_SPTest 15
 #define FC_SNTest 16
+#define FC_WalterLog 17
+#define FC_STwo 18
 #define FC_TurnOffAll 20
 #define FC_MCW 21
 #define FC_MCCW 22
@@ -81,6 +92,10 @@
 #define FC_LFlash1 48
 #define FC_LFlash2 49
 #define FC_LYref 50
+#define FC_WalterSetup 51
+#define FC_WalterGoal 52
+#define FC_WalterBeat 53
+#define FC_LSTwo 54
 #define FC_LMCW 56
 #define FC_LMCCW 57
 #define FC_LSCW 58
@@ -112,6 +127,8 @@
     {14, 1, 0, 0}, \
     {15, 1, 2, 0}, \
     {16, 1, 2, 0}, \
+    {17, 1, 4, 1}, \
+    {18, 1, 3, 1}, \
     {20, 1, 0, 0}, \
     {21, 1, 4, 0}, \
     {22, 1, 4, 0}, \
@@ -140,6 +157,10 @@
     {48, 2, 2, 0}, \
     {49, 2, 2, 0}, \
     {50, 2, 1, 0}, \
+    {51, 2, 5, 1}, \
+    {52, 2, 7, 1}, \
+    {53, 2, 2, 1}, \
+    {54, 2, 3, 1}, \
     {56, 2, 4, 0}, \
     {57, 2, 4, 0}, \
     {58, 2, 4, 0}, \
@@ -168,6 +189,8 @@
     {14, 31, 35}, \
     {15, 36, 0}, \
     {16, 37, 0}, \
+    {17, 0, 0}, \
+    {18, 54, 0}, \
     {20, 45, 0}, \
     {21, 56, 0}, \
     {22, 57, 0}, \
@@ -264,6 +287,26 @@
 #define PC_FRAME_LEN 11
 #define RELAY_FRAME_LEN 7
 #define MSG1_LEN 8
+#define BYTE_WALTER_REQUEST 0x57
+#define BYTE_WALTER_ANSWER 0x77
+#define BYTE_WALTER_BUSY 0x57
+#define TXT_WLK "WLK"
+#define WALTER_NO_POSITION 255
+#define WALTER_TABLE_CAPACITY 64
+#define WALTER_REQUEST_LEN 4
+#define WALTER_ANSWER_LEN 3
+#define WALTER_MODE_CW 1
+#define WALTER_MODE_DELAY_SHIFT 1
+#define WALTER_MODE_DELAY_MAX 15
+#define WALTER_OP_HOLD 1
+#define WALTER_OP_PIVOT_CW 2
+#define WALTER_OP_PIVOT_CCW 3
+#define WALTER_FLAG_FREE 1
+#define WALTER_FLAG_MOVED 2
+#define WALTER_FLAG_CW 4
+#define WALTER_FLAG_STOPPED 8
+#define WALTER_FLAG_ANCHOR 16
+#define WALTER_FLAG_UNANSWERED 32
 /* what an image on the wrong board, or a board of unknown kind, prints (bus/chip.py) */
 #define TXT_GUARD_COMM_ON_CONTROL "\012\015\012\015WRONG BOARD: COMM IMAGE, EEPROM SAYS CONTROL\012\015"
 #define TXT_GUARD_CONTROL_ON_COMM "\012\015\012\015WRONG BOARD: CONTROL IMAGE, EEPROM SAYS COMM\012\015"

@@ -15,6 +15,8 @@
  * caller (relay.result, rotate.ack, dispatch.ack, ...) is read there after its PT_CALL.
  * Every line to the PC is built and sent by LINE_SEND, one burst at a time. Waits and
  * show lengths are bus/timing.py's, through hexbot_gen.h. */
+#include <string.h>
+
 #include "hexbot.h"
 
 const uint8_t program_outputs[5] = {COMM_OUTPUTS_A, COMM_OUTPUTS_B, COMM_OUTPUTS_C,
@@ -756,6 +758,389 @@ static uint8_t co_move(const uint8_t *a)
     }
     PT_END(pt);
 }
+
+/* --- v2 distributed reconfiguration: a Walter round (docs/protocol.md) ----------------- */
+/* Figure 10 as module_sim/walter.py runs it, and CommBoard.WalterBeat's round. Sides are
+ * global (body side + Yref); contacts is a bit mask, bit s-1 = a neighbour across side s. */
+static const uint8_t WALTER_T[3] = WALTER_ROTATION_TICKS;
+static const uint8_t BUSY[1] = {BYTE_WALTER_BUSY};
+
+static struct {
+    uint8_t on, n, plen, cost;
+    int16_t ax, ay;                           /* the anchor: where I meets G */
+    uint8_t goal[WALTER_TABLE_CAPACITY][3];   /* per position: x+128, y+128, mode (0, 0: none) */
+    uint8_t started;
+    int16_t sx, sy;                           /* its cell when the first round began */
+    uint8_t position;                         /* WALTER_NO_POSITION until free */
+    uint8_t passed_cw, passed_ccw, passed_by[32]; /* bit p: the mover at position p passed */
+    uint8_t free, delay, stopped, moved, unanswered;
+    uint8_t has_pivot;
+    int16_t px, py;                           /* the contact it last turned about */
+    uint8_t plan, cw, joint, sub, holders;    /* this round's move: pivot joint, substrate side */
+} walter;
+
+static uint8_t walter_entry(void)
+{
+    uint8_t p = walter.position;
+    return p < WALTER_TABLE_CAPACITY && (walter.goal[p][0] || walter.goal[p][1]);
+}
+
+static uint8_t walter_at_goal(int16_t x, int16_t y)
+{
+    const uint8_t *e = walter.goal[walter.position];
+    return x == (int16_t)e[0] - COORD_OFFSET && y == (int16_t)e[1] - COORD_OFFSET;
+}
+
+static uint8_t walter_is_anchor(void)
+{
+    return walter.started && walter.sx == walter.ax && walter.sy == walter.ay;
+}
+
+static uint8_t walter_done(void)
+{
+    return walter.stopped || walter_is_anchor();
+}
+
+static uint8_t has(uint8_t mask, uint8_t side)
+{
+    return mask >> (side - 1) & 1;
+}
+
+static uint8_t flips(uint8_t c)
+{
+    uint8_t f = 0;
+    for (uint8_t i = 0; i < 6; i++)
+        f += (uint8_t)((c >> i & 1) != (c >> ((i + 1) % 6) & 1));
+    return f;
+}
+
+static uint8_t touching(uint8_t c)
+{
+    uint8_t k = 0;
+    for (uint8_t i = 0; i < 6; i++)
+        k += c >> i & 1;
+    return k;
+}
+
+/* The global side of the start cell that points away from the anchor along I, or 0. */
+static uint8_t walter_beyond(void)
+{
+    if (!walter.started || walter_is_anchor())
+        return 0;
+    for (uint8_t s = 1; s <= 6; s++) {
+        int16_t x = walter.ax, y = walter.ay;
+        for (uint8_t k = 0; k < walter.n; k++) {
+            x += fw_sbyte(&NB_DX[s]), y += fw_sbyte(&NB_DY[s]);
+            if (x == walter.sx && y == walter.sy)
+                return s;
+        }
+    }
+    return 0;
+}
+
+/* One step round the structure from the side towards the contact it last turned about. */
+static uint8_t walter_plan(uint8_t c, uint8_t cw, uint8_t pivot)
+{
+    if (!has(c, pivot))
+        return 0;
+    uint8_t s = pivot;
+    for (uint8_t k = 0; k < 6; k++) {
+        uint8_t next = fold((int16_t)s + (cw ? -1 : 1));
+        if (!has(c, next)) {
+            walter.cw = cw, walter.sub = s;
+            walter.joint = cw ? s : fold((int16_t)s + 1);
+            walter.holders = (uint8_t)(c & ~(1u << (s - 1)));
+            return 1;
+        }
+        s = next;
+    }
+    return 0;
+}
+
+/* Figure 10 for this round from its cell and contacts: walter.plan says whether it moves. */
+static void walter_decide(uint8_t c)
+{
+    walter.moved = walter.unanswered = walter.plan = 0;
+    if (!walter.started)
+        walter.started = 1, walter.sx = X, walter.sy = Y;
+    if (walter_is_anchor() || walter.stopped)
+        return;
+    if (walter_entry() && walter_at_goal(X, Y)) {
+        walter.stopped = 1; /* once stopped in its goal, it never leaves */
+        return;
+    }
+    if (!walter.free) {
+        uint8_t beyond = walter_beyond();
+        if (beyond && X == walter.sx && Y == walter.sy && has(c, beyond))
+            return;
+        if (flips(c) != 2 || touching(c) >= 5)
+            return;
+        walter.free = 1;
+        walter.position = (uint8_t)(walter.passed_cw + walter.passed_ccw);
+        walter.has_pivot = beyond != 0;
+        if (beyond) {
+            uint8_t t = fold((int16_t)beyond + 3);
+            walter.px = X + fw_sbyte(&NB_DX[t]), walter.py = Y + fw_sbyte(&NB_DY[t]);
+        }
+        if (!walter_entry())
+            return;
+        walter.delay = walter.goal[walter.position][2] >> WALTER_MODE_DELAY_SHIFT & WALTER_MODE_DELAY_MAX;
+    }
+    if (!walter_entry() || !walter.has_pivot)
+        return;
+    if (walter.delay > 0) {
+        walter.delay--;
+        return;
+    }
+    uint8_t towards = 0;
+    for (uint8_t s = 1; s <= 6; s++)
+        if (X + fw_sbyte(&NB_DX[s]) == walter.px && Y + fw_sbyte(&NB_DY[s]) == walter.py)
+            towards = s;
+    if (!towards || !has(c, towards)) {
+        /* the contact it last turned about has gone: any side of its one arc will do */
+        towards = 0;
+        for (uint8_t s = 6; s >= 1 && flips(c) == 2; s--)
+            if (has(c, s))
+                towards = s;
+    }
+    if (towards)
+        walter.plan = walter_plan(c, walter.goal[walter.position][2] & WALTER_MODE_CW, towards);
+}
+
+/* The mover at position `who` asks to turn about this module: count it once while in I. */
+static void walter_passed(uint8_t op, uint8_t who)
+{
+    if (walter.free || walter_done() || op == WALTER_OP_HOLD || walter.passed_by[who >> 3] >> (who & 7) & 1)
+        return;
+    walter.passed_by[who >> 3] |= (uint8_t)(1u << (who & 7));
+    if (op == WALTER_OP_PIVOT_CW)
+        walter.passed_cw++;
+    else
+        walter.passed_ccw++;
+}
+
+static uint8_t walter_flags(void)
+{
+    uint8_t f = 0;
+    if (walter.free) f |= WALTER_FLAG_FREE;
+    if (walter.moved) f |= WALTER_FLAG_MOVED;
+    if (walter_entry() && (walter.goal[walter.position][2] & WALTER_MODE_CW)) f |= WALTER_FLAG_CW;
+    if (walter.stopped) f |= WALTER_FLAG_STOPPED;
+    if (walter_is_anchor()) f |= WALTER_FLAG_ANCHOR;
+    if (walter.unanswered) f |= WALTER_FLAG_UNANSWERED;
+    return f;
+}
+
+/* WalterSetup(n, plen, cost, ax, ay): a new problem. */
+static void walter_setup(const uint8_t *a)
+{
+    memset(&walter, 0, sizeof walter);
+    walter.on = 1, walter.n = a[0], walter.plen = a[1], walter.cost = a[2];
+    walter.ax = (int16_t)a[3] - COORD_OFFSET, walter.ay = (int16_t)a[4] - COORD_OFFSET;
+    walter.position = WALTER_NO_POSITION;
+}
+
+/* WalterGoal(k, x, y, m, x2, y2, m2): entries k and k+1 (x = y = 0 on the wire: none). */
+static void walter_goal(const uint8_t *a)
+{
+    if (!walter.on)
+        return;
+    for (uint8_t j = 0; j < 2; j++) {
+        uint16_t at = (uint16_t)(a[0] + j);
+        const uint8_t *e = &a[1 + 3 * j];
+        if ((e[0] || e[1]) && at < WALTER_TABLE_CAPACITY)
+            walter.goal[at][0] = e[0], walter.goal[at][1] = e[1], walter.goal[at][2] = e[2];
+    }
+}
+
+/* "W" op ~op position, or "w" op ~op: a side message (one burst). */
+static void line_walter(uint8_t tag, uint8_t op, uint8_t who, uint8_t with_who)
+{
+    line_add(tag), line_add(op), line_add((uint8_t)~op);
+    if (with_who)
+        line_add(who);
+}
+
+/* Wait until tick `end` for a side message starting with `tag` (a request: op, ~op, the
+ * mover's position; an answer: op, ~op); wside.op (0: none) and wside.body[2]. */
+static struct { pt_t pt; uint8_t byte, k, n, body[WALTER_REQUEST_LEN - 1], op; } wside;
+
+static uint8_t co_walter_side(uint8_t tag, uint16_t end)
+{
+    pt_t *pt = &wside.pt;
+    PT_BEGIN(pt);
+    wside.op = 0;
+    wside.n = tag == BYTE_WALTER_REQUEST ? WALTER_REQUEST_LEN - 1 : WALTER_ANSWER_LEN - 1;
+    do {
+        RX_TL(pt, UART1, ticks_until(end), wside.byte);
+    } while (wside.byte != tag && wside.byte != ACK_TIMEOUT);
+    if (wside.byte != tag)
+        PT_EXIT(pt);
+    for (wside.k = 0; wside.k < wside.n; wside.k++) {
+        RX_TL(pt, UART1, ticks_until(end), wside.body[wside.k]);
+    }
+    if ((uint8_t)(wside.body[0] ^ wside.body[1]) == 0xFF && wside.body[0] >= WALTER_OP_HOLD
+        && wside.body[0] <= WALTER_OP_PIVOT_CCW)
+        wside.op = wside.body[0];
+    PT_END(pt);
+}
+
+/* A control-board code this board sends itself, with its LED mirror (as co_dispatch). */
+static rotation_two_t led_two;
+static struct { pt_t pt; uint8_t code, args[4]; } mirrored;
+
+/* The arguments of the next co_relay_mirrored. */
+static void mirrored_args(uint8_t a, uint8_t b, uint8_t c)
+{
+    mirrored.args[0] = a, mirrored.args[1] = b, mirrored.args[2] = c;
+}
+
+static uint8_t co_relay_mirrored(uint8_t code)
+{
+    pt_t *pt = &mirrored.pt;
+    PT_BEGIN(pt);
+    mirrored.code = code;
+    PT_CALL(pt, co_relay(mirrored.code, mirrored.args));
+    if (mirrored.code == FC_JxOpen) {
+        led(JNT_PORT, JNT_MASK, mirrored.args[0], 1);
+    } else if (mirrored.code == FC_JxCloseAll) {
+        leds(JNT_PORT, JNT_MASK, 0);
+    } else {
+        PT_CALL(pt, co_rotation_two(&led_two, mirrored.args[0], &mirrored.args[1], WALTER_T, mirror_act));
+    }
+    PT_END(pt);
+}
+
+/* Two movers may turn about one substrate only from sides that do not meet at a joint. */
+static uint8_t walter_apart(uint8_t first, uint8_t second)
+{
+    uint8_t d = (uint8_t)((second + 6 - first) % 6);
+    return d != 0 && d != 1 && d != 5;
+}
+
+/* WalterBeat(r_hi, r_lo): one round (docs/protocol.md). */
+static struct {
+    pt_t pt;
+    uint16_t t0, round;
+    uint16_t end; /* the tick this window ends on */
+    uint8_t c, g, op, answered, opened, npivots, pivot_op[2], pivot_g[2], args[4], dirs;
+} wround;
+
+static uint16_t wround_at(uint16_t ticks)
+{
+    return (uint16_t)(wround.t0 + ticks);
+}
+
+/* The tick window g (1..6) of this round starts on; its end is window g + 1's start. */
+static uint16_t window_at(uint8_t g)
+{
+    return wround_at((uint16_t)((g - 1) * WALTER_WINDOW_TICKS));
+}
+
+static uint8_t co_walter(const uint8_t *a)
+{
+    pt_t *pt = &wround.pt;
+    PT_BEGIN(pt);
+    wround.round = (uint16_t)(a[0] << 8 | a[1]);
+    if (wround.round == 0)
+        walter.on = 0;
+    if (!walter.on || wround.round == 0 || !L)
+        PT_EXIT(pt);
+    wround.t0 = board_ticks();
+    wround.c = 0;
+    for (uint8_t s = 1; s <= 6; s++)
+        if (neighbour(s))
+            wround.c |= (uint8_t)(1u << (fold((int16_t)s + Yref) - 1));
+    walter_decide(wround.c);
+    wround.answered = 1, wround.opened = 0, wround.npivots = 0;
+    for (wround.g = 1; wround.g <= 6; wround.g++) {
+        wround.op = 0;
+        if (walter.plan && wround.answered) {
+            if (wround.g == walter.sub)
+                wround.op = walter.cw ? WALTER_OP_PIVOT_CW : WALTER_OP_PIVOT_CCW;
+            else if (has(walter.holders, wround.g))
+                wround.op = WALTER_OP_HOLD;
+        }
+        if (wround.op) { /* ask the neighbour across global side g */
+            wround.end = window_at(wround.g + 1);
+            WAIT_TICK(pt, window_at(wround.g));
+            IrSel(fold((int16_t)wround.g - Yref));
+            WAIT_TICK(pt, (uint16_t)(window_at(wround.g) + WALTER_MUX_SETTLE_TICKS));
+            LINE_SEND(pt, line_walter(BYTE_WALTER_REQUEST, wround.op, walter.position, 1));
+            PT_CALL(pt, co_walter_side(BYTE_WALTER_ANSWER, wround.end));
+            if (wside.op != wround.op) {
+                wround.answered = 0;
+            } else if (wround.op == WALTER_OP_HOLD) { /* and open its own pin on that side */
+                mirrored_args(fold((int16_t)wround.g + 1 - Yref), 0, 0);
+                PT_CALL(pt, co_relay_mirrored(FC_JxOpen));
+                wround.opened = 1;
+            }
+            continue;
+        }
+        /* listen for a mover across global side g + 3 (it sends on its side g) */
+        if (!has(wround.c, fold((int16_t)wround.g + 3)))
+            continue;
+        wround.end = window_at(wround.g + 1);
+        WAIT_TICK(pt, window_at(wround.g));
+        IrSel(fold((int16_t)wround.g + 3 - Yref));
+        PT_CALL(pt, co_walter_side(BYTE_WALTER_REQUEST, wround.end));
+        if (!wside.op)
+            continue;
+        if (walter.plan && wside.op != WALTER_OP_HOLD)
+            continue; /* a mover is nobody's substrate (it opens its own pin to a mover) */
+        if (wside.op != WALTER_OP_HOLD && wround.npivots
+            && (wround.npivots == 2 || !walter_apart(wround.pivot_g[0], wround.g)))
+            continue; /* two repelling sides side by side would drive this module itself */
+        LINE_SEND(pt, line_walter(BYTE_WALTER_ANSWER, wside.op, 0, 0));
+        if (wside.op == WALTER_OP_HOLD) { /* the pin at the end of the side facing the mover */
+            mirrored_args(fold((int16_t)wround.g + 4 - Yref), 0, 0);
+            PT_CALL(pt, co_relay_mirrored(FC_JxOpen));
+            wround.opened = 1;
+        } else {
+            wround.pivot_op[wround.npivots] = wside.op, wround.pivot_g[wround.npivots] = wround.g;
+            wround.npivots++;
+            walter_passed(wside.op, wside.body[2]);
+        }
+    }
+    IrSel(0);
+    walter.unanswered = walter.plan && !wround.answered;
+    WAIT_TICK(pt, wround_at(WALTER_ACTUATION_AT));
+    if (walter.plan && wround.answered) {
+        wround.args[0] = fold((int16_t)walter.joint - Yref);
+        PT_CALL(pt, co_rotate(walter.cw ? FC_MCW : FC_MCCW, wround.args[0], WALTER_T[0], WALTER_T[1], WALTER_T[2]));
+        walter.px = X + fw_sbyte(&NB_DX[walter.sub]), walter.py = Y + fw_sbyte(&NB_DY[walter.sub]);
+        walter.moved = 1;
+        moved(wround.args[0], walter.cw);
+    } else if (wround.npivots) {
+        /* the pivot in this body: the mover's joint (g for CW, g + 1 for CCW) - Yref */
+        for (uint8_t k = 0; k < wround.npivots; k++)
+            wround.args[k] = fold((int16_t)wround.pivot_g[k] + (wround.pivot_op[k] == WALTER_OP_PIVOT_CW ? 0 : 1) - Yref);
+        if (wround.npivots == 1) {
+            PT_CALL(pt, co_rotate(wround.pivot_op[0] == WALTER_OP_PIVOT_CW ? FC_SCW : FC_SCCW, wround.args[0],
+                                  WALTER_T[0], WALTER_T[1], WALTER_T[2]));
+        } else {
+            wround.dirs = (uint8_t)((wround.pivot_op[0] == WALTER_OP_PIVOT_CW)
+                                    | (wround.pivot_op[1] == WALTER_OP_PIVOT_CW) << 1);
+            mirrored_args(wround.dirs, wround.args[0], wround.args[1]);
+            PT_CALL(pt, co_relay_mirrored(FC_STwo));
+        }
+    } else if (wround.opened) { /* a rotation ends with every joint closed; a holder closes them itself */
+        WAIT_TICK(pt, wround_at(WALTER_HOLD_END_AT));
+        mirrored_args(0, 0, 0);
+        PT_CALL(pt, co_relay_mirrored(FC_JxCloseAll));
+    }
+    WAIT_TICK(pt, wround_at(WALTER_LOG_AT));
+    if (walter.free && walter_entry() && walter_at_goal(X, Y))
+        walter.stopped = 1;
+    wround.args[0] = (uint8_t)wround.round, wround.args[1] = walter_flags();
+    wround.args[2] = walter.position, wround.args[3] = walter.delay;
+    PT_CALL(pt, co_relay(FC_WalterLog, wround.args));
+    WAIT_TICK(pt, wround_at(WALTER_BUSY_AT));
+    if (!walter_done()) {
+        TX(pt, UART1, BUSY, 1);
+    }
+    PT_END(pt);
+}
 #endif
 
 /* --- Listen(): one frame from the PC ------------------------------------------------- */
@@ -792,6 +1177,10 @@ static uint8_t run_comm(uint8_t code, const uint8_t *a)
 #if HEXBOT_V2
     case FC_Report: return co_send_line(line_position);
     case FC_Version: return co_send_line(line_version);
+    case FC_WalterSetup: walter_setup(a); return PT_DONE;
+    case FC_WalterGoal: walter_goal(a); return PT_DONE;
+    case FC_WalterBeat: return co_walter(a);
+    case FC_LSTwo: return co_rotation_two(&led_two, a[0], &a[1], WALTER_T, mirror_act);
 #endif
     default: return PT_DONE;
     }

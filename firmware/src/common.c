@@ -107,3 +107,33 @@ uint8_t co_rotation(rotation_t *r, const int8_t *steps, uint8_t i, const uint8_t
     }
     PT_END(pt);
 }
+
+#if HEXBOT_V2
+/* Act on the steps of one phase (up to its wait or the end); the place after it. */
+static uint8_t rotation_phase(const int8_t *steps, uint8_t at, uint8_t i, rotation_action act)
+{
+    uint8_t op;
+    while ((op = (uint8_t)fw_byte(&steps[at])) != 0 && op != ROT_WAIT) {
+        act(op, (int16_t)i + fw_sbyte(&steps[at + 1]));
+        at += 2;
+    }
+    return op == ROT_WAIT ? (uint8_t)(at + 2) : at;
+}
+
+uint8_t co_rotation_two(rotation_two_t *r, uint8_t dirs, const uint8_t i[2], const uint8_t t[3],
+                        rotation_action act)
+{
+    pt_t *pt = &r->pt;
+    PT_BEGIN(pt);
+    r->at[0] = r->at[1] = 0;
+    for (r->phase = 0; r->phase < 4; r->phase++) {
+        for (uint8_t k = 0; k < 2; k++)
+            r->at[k] = rotation_phase(rotation_steps(dirs >> k & 1 ? FC_SCW : FC_SCCW), r->at[k],
+                                      i[k], act);
+        if (r->phase < 3) {
+            DELAY(pt, t[r->phase]);
+        }
+    }
+    PT_END(pt);
+}
+#endif

@@ -134,6 +134,26 @@ static uint8_t co_selftest(uint8_t switches)
 #endif
 
 static rotation_t rotation;
+#if HEXBOT_V2
+static rotation_two_t rotation_two;
+static const uint8_t WALTER_T[3] = WALTER_ROTATION_TICKS;
+
+/* WalterLog(round, flags, position, delay): the round's line, "WLK" and the four bytes. */
+static pt_t pt_wlk;
+static uint8_t wlk_line[9];
+
+static uint8_t co_walter_log(const uint8_t *a)
+{
+    pt_t *pt = &pt_wlk;
+    PT_BEGIN(pt);
+    wlk_line[0] = TXT_WLK[0], wlk_line[1] = TXT_WLK[1], wlk_line[2] = TXT_WLK[2];
+    for (uint8_t j = 0; j < 4; j++)
+        wlk_line[3 + j] = a[j];
+    wlk_line[7] = TXT_EOL[0], wlk_line[8] = TXT_EOL[1];
+    TX(pt, UART1, wlk_line, 9);
+    PT_END(pt);
+}
+#endif
 
 /* Run code with its arguments; PT_DONE when finished (at once for the instant ones). */
 static uint8_t execute(uint8_t code, const uint8_t *a)
@@ -153,6 +173,8 @@ static uint8_t execute(uint8_t code, const uint8_t *a)
         return co_rotation(&rotation, rotation_steps(code), a[0], &a[1], rotation_act);
 #if HEXBOT_V2
     case FC_SelfTest: return co_selftest(a[0]);
+    case FC_WalterLog: return co_walter_log(a);
+    case FC_STwo: return co_rotation_two(&rotation_two, a[0], &a[1], WALTER_T, rotation_act);
 #endif
     default: return PT_DONE; /* the thesis's if-chain matches nothing */
     }

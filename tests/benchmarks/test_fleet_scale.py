@@ -182,7 +182,7 @@ def test_sharded_fleet_scale(tmp_path):
     from bus.lockstep import Lockstep, LockstepClock
     from bus.session import SessionOptions, open_session
     from bus.transport import Bus
-    from module_sim.shards import participants, window_ns
+    from module_sim.shards import LAGS, participants, window_ns
     from module_sim.world import World
     from planner_svc.endpoint import PcEndpoint
     from tests.support.block_fleets import block_scenarios, fleet_names
@@ -208,7 +208,7 @@ def test_sharded_fleet_scale(tmp_path):
         for bus, sc in zip(buses, scenarios):
             World(bus, sc, own=set(), pc=True, physics=False, slack_ns=2 * w)
         pcs = [PcEndpoint(bus) for bus in buses]
-        step = Lockstep(buses[0], "pc", participants(SHARDS), w, timeout_s=300)
+        step = Lockstep(buses[0], "pc", participants(SHARDS), w, timeout_s=300, lags=LAGS)
         procs = [subprocess.Popen([sys.executable, "-m", "tests.support.block_fleets", str(n), "sh",
                                    f"{k}/{SHARDS}", "--connect", f"tcp/127.0.0.1:{port}"],
                                   stdout=subprocess.PIPE, text=True) for k in range(SHARDS)]

@@ -4,8 +4,10 @@ import pytest
 from hypothesis import given, strategies as st
 
 from bus import codec
-from bus.codec import Kind, Link, parse
-from bus.functions import FUNCTIONS, Arg, Board, Function, FunctionCode, lookup, used_codes
+from bus.codec import (WALTER_BUSY, WALTER_NO_POSITION, Kind, Link, encode_walter_answer,
+                       encode_walter_log, encode_walter_request, parse, walter_side_op)
+from bus.functions import (FUNCTIONS, Arg, Board, Function, FunctionCode, WalterFlag, WalterOp, lookup,
+                           used_codes)
 
 byte = st.integers(0, 255)
 roles = st.sampled_from([b"", b"S: ", b"M: "])
@@ -152,12 +154,18 @@ def test_noise_reasons(raw, reason):
 
 def test_function_table_is_complete_and_consistent():
     assert FunctionCode.MCW == 21 and lookup("mcw").code == 21 and lookup(21).name == "MCW"
-    unused = [6, 7, 8, 9, 10, 17, 18, 19, 26, 27, 51, 52, 53, 54, 55, 69, 70, 75]
+    unused = [6, 7, 8, 9, 10, 19, 26, 27, 55, 69, 70, 75]
     assert FUNCTIONS[63].name == "Version" and FUNCTIONS[64].name == "SelfTest"  # ours (v2)
+    # ours (v2): the distributed reconfiguration's upload, beat and debug line
+    walter = (51, 52, 53, 17, 18, 54)
+    assert [FUNCTIONS[c].name for c in walter] == ["WalterSetup", "WalterGoal", "WalterBeat",
+                                                  "WalterLog", "STwo", "LSTwo"]
+    assert all(FUNCTIONS[c].profile == "v2" for c in walter)
     assert all(not FUNCTIONS[c].used for c in unused)
     assert all(FUNCTIONS[c].board.value == "control" for c in (1, 2, 3, 4, 5, 11, 12, 13, 14, 15, 16,
                                                                20, 21, 22, 23, 24))
-    assert all(FUNCTIONS[c].led_mirror for c in range(1, 25) if FUNCTIONS[c].used)
+    assert all(FUNCTIONS[c].led_mirror for c in range(1, 25)
+               if FUNCTIONS[c].used and FUNCTIONS[c].profile == "v1")
     assert FUNCTIONS[42].board.value == "reserved" and FUNCTIONS[126].board.value == "reserved"
     for f in FUNCTIONS.values():
         for m in f.led_mirror:  # every mirror names a real comm-board function
@@ -194,3 +202,33 @@ def test_a_value_equal_to_the_filler_is_range_checked(encode, fn, filler):
 def test_an_argument_left_out_by_keyword_is_the_filler_unchecked():
     raw = codec.encode_command("Move", mid=5)
     assert raw[2:4] == bytes([0, 5])  # dir left out: the PC frame's filler, as before
+
+
+# --- v2 Walter rounds (docs/protocol.md) ------------------------------------------------------
+@pytest.mark.parametrize("op", list(WalterOp))
+def test_walter_side_messages_round_trip(op):
+    f = parse("side", encode_walter_request(op, 7))
+    assert f.kind is Kind.WALTER_REQUEST and f.view == {"op": op.name.lower(), "valid": True, "position": 7}
+    f = parse("side", encode_walter_answer(op))
+    assert f.kind is Kind.WALTER_ANSWER and f.view == {"op": op.name.lower(), "valid": True}
+
+
+def test_a_garbled_walter_side_message_does_not_check():
+    raw = bytearray(encode_walter_request(WalterOp.PIVOT_CW, 0))
+    raw[2] ^= 0x10  # one bit of the complement lost
+    assert parse("side", bytes(raw)).view["valid"] is False
+    assert walter_side_op(bytes([0, 0xFF])) is None  # a complement that checks, but no such op
+
+
+def test_walter_log_line():
+    flags = WalterFlag.FREE | WalterFlag.MOVED | WalterFlag.CW
+    f = parse("debug", encode_walter_log(300, flags, 4, 0))
+    assert f.kind is Kind.WALTER_LOG
+    assert f.view["round"] == 300 % 256 and f.view["position"] == 4 and f.view["direction"] == "CW"
+    assert f.view["free"] and f.view["moved"] and not f.view["stopped"]
+    unknown = parse("debug", encode_walter_log(1, 0, WALTER_NO_POSITION, 0)).view
+    assert unknown["position"] is None and unknown["direction"] is None
+
+
+def test_walter_busy_byte_is_a_centre_frame():
+    assert parse("centre", WALTER_BUSY).kind is Kind.WALTER_BUSY

@@ -109,3 +109,20 @@ def test_a_peers_samples_of_its_next_window_wait_for_their_own_boundary():
     clock.mark_window("s1", 1)
     assert clock.release(90, 2) == 1
     assert handled[2:] == [(90, "s0 in window 1")]
+
+
+def test_a_participant_that_runs_behind_takes_its_peers_next_window_at_its_start():
+    """A participant one window behind (the planner's process of a sharded run) ends window k
+    with its peers' samples of window k + 1: handled at the boundary, before their time, so
+    light from every shard is there before the window in which it is decoded."""
+    from bus.lockstep import LockstepClock
+
+    clock = LockstepClock()
+    handled: list[tuple[int, str]] = []
+    clock.post_foreign("s0", lambda: handled.append((clock.now_ns(), "s0 in window 0")))
+    clock.mark_window("s0", 0)
+    clock.post_foreign("s0", lambda: handled.append((clock.now_ns(), "s0 in window 1")))
+    clock.mark_window("s0", 1)
+    clock.post_foreign("s0", lambda: handled.append((clock.now_ns(), "s0 in window 2")))
+    assert clock.release(30, 0, {"s0": 1}) == 2
+    assert handled == [(30, "s0 in window 0"), (30, "s0 in window 1")]

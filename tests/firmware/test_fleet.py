@@ -17,7 +17,7 @@ from mcap.reader import make_reader
 from toolchain import needs_avr
 
 ROOT = Path(__file__).resolve().parents[2]
-pytestmark = needs_avr
+pytestmark = [needs_avr, pytest.mark.wall_clock]  # wall clock: tests/support/wall_clock.py
 
 RUNS = {
     # the reference is the firmware: its twin's side light localizes the virtual module
@@ -66,8 +66,8 @@ def test_firmware_reference_in_the_thesis_experiment(runs):
     serial = Counter((d["src"], d["kind"]) for t, d in recs if t.startswith("frame/") and d["origin"] == "serial")
     # the firmware's own answers, through its pty: the Ref ACK, its boot banners, its debug lines
     assert serial[("hil.m1-ir", "ack")] >= 1 and serial[("m1.ctrl", "debug-msg")] >= 1
-    assert not [d for t, d in recs if t.startswith("event/") and d["kind"] == "twin-diverged"]
-    assert out.count("no divergence") == 2  # centre and debug, answer for answer
+    assert not [d for t, d in recs if t.startswith("event/") and d["kind"] == "twin-diverged"], out
+    assert out.count("no divergence") == 2, out  # centre and debug, answer for answer
 
 
 def test_firmware_mobile_module_moves_by_its_own_reports(runs):

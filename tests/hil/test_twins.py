@@ -20,6 +20,8 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
+pytestmark = pytest.mark.wall_clock  # tests/support/wall_clock.py
+
 ROOT = Path(__file__).resolve().parents[2]
 RUN_TIMEOUT_S = 400.0
 PAIR = ('name = "pair-real"\nprofile = "v2"\nfixed = [0, 0]\ngoal = [[0, 0], [0, 1]]\n'
@@ -136,9 +138,9 @@ def test_fixed_real_module_reaches_the_goal_with_no_divergence(runs):
     assert {d["src"] for d in serial} == {"hil.m2", "m2.ctrl"}
     assert {"position", "ack"} <= {d["kind"] for d in serial}
     # the board's answers and debug lines were held against its twin's, and agreed
-    assert not run.events("twin-diverged")
+    assert not run.events("twin-diverged"), run.out
     assert "twin check m2 (centre): " in run.out and "twin check m2 (debug): " in run.out
-    assert run.out.count("no divergence") == 2
+    assert run.out.count("no divergence") == 2, run.out
     # the twin's light, not the board's, localized the neighbours: every module localized
     assert "bring-up: localized 6 of 6 modules" in run.out
 

@@ -104,6 +104,7 @@ def test_thesis_profile_fleet_is_refused_with_the_reason(capsys):
 
 
 @pytest.mark.slow
+@pytest.mark.wall_clock
 def test_planner_in_another_process_reaches_the_goal(tmp_path):
     """Acceptance: ``hexbench fleet thesis-6 --clock wall`` in one process and ``hexbench
     planner thesis-6 --clock wall`` in another, over zenoh on loopback."""

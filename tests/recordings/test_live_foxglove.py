@@ -89,6 +89,7 @@ def _watch(proc, enough, seconds: float = 60):
         raise AssertionError(f"{exc}\n{proc.communicate(timeout=30)[0]}") from None
 
 
+@pytest.mark.wall_clock
 def test_a_wall_clock_run_is_served_to_foxglove():
     port = free_port()
     proc = hexbench("run", "thesis-6", "--clock", "wall", "--live", "foxglove=127.0.0.1:0",
@@ -162,6 +163,7 @@ def test_a_bad_live_spec_is_refused_in_one_line(capsys):
     assert exc.value.code == 2 and "foxglove=HOST:PORT" in err and "Traceback" not in err
 
 
+@pytest.mark.wall_clock
 def test_monitor_serves_a_fleet_in_another_process_to_foxglove():
     """``monitor --live foxglove`` joins late: it asks the world to republish its poses, so the
     scene shows every module of the running fleet."""

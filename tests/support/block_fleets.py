@@ -37,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
     from bus.session import SessionOptions, open_session
     from bus.transport import Bus
     from module_sim.fleet import Fleet
-    from module_sim.shards import participants, shard_name, window_ns
+    from module_sim.shards import LAGS, participants, shard_name, window_ns
 
     p = argparse.ArgumentParser()
     p.add_argument("n", type=int)
@@ -53,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
     buses = [Bus(clock, name, session=session) for name in fleet_names(args.n, args.tag)]
     w = window_ns(scenarios[0].ir_baud)
     fleets = [Fleet(bus, sc, shard=(k, parts), slack_ns=2 * w) for bus, sc in zip(buses, scenarios)]
-    step = Lockstep(buses[0], shard_name(k), participants(parts), w, timeout_s=300)
+    step = Lockstep(buses[0], shard_name(k), participants(parts), w, timeout_s=300, lags=LAGS)
     for i, fleet in enumerate(fleets):
         fleet.power_up(freeze_gc=i == len(fleets) - 1)
     print("ready", flush=True)

@@ -3,7 +3,8 @@ bytes with every ``garble`` correction and ``cut`` applied, then :class:`bus.ir.
 rule for one UART line (of two garbled bytes that overlap, only the first to complete forms a
 byte), byte by byte at each stop bit. The IR medium's lookahead contract (docs/bus.md, Shards)
 is that a correction reaches a receiver before its byte's stop bit, so these are the bytes
-the receiver delivered. The order of the samples is not used: over shards, light from another
+the receiver delivered; one that came later is an ``ir-conflict`` event of the receiver (the
+tests require none), since the receiver had delivered the byte before it. The order of the samples is not used: over shards, light from another
 process is handled a window late, and the recorder logs an ``ir/rx`` sample (it has no time of
 its own) at the last sim time it saw."""
 

@@ -4,6 +4,7 @@ killed shard ends the run at that window, named, and the recording keeps what ca
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
@@ -15,7 +16,9 @@ import pytest
 
 from hexbench.cli import main
 from hexbench.fleet import SHARD_EXIT_ENV
-from recordings.reader import read_frames
+from bus.scenario import load
+from module_sim.shards import window_ns
+from recordings.reader import iter_samples, read_frames
 from tests.support.processes import free_port
 from tests.support.received import pc_noise, received
 
@@ -61,6 +64,14 @@ def _same_received(path, reference) -> None:
     assert noise and pc_noise(path) == noise
 
 
+def _conflicts(path) -> list[dict]:
+    """The ``ir-conflict`` events of every receiver (bus.ir.IrReceiver)."""
+    from bus.ir import IR_CONFLICT
+
+    return [d for s in iter_samples(path) if s.topic.startswith("event/")
+            and (d := json.loads(s.data)).get("kind") == IR_CONFLICT]
+
+
 def _run(*extra: str, out) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "hexbench", "run", "thesis-12", "--planner", "complete",
                            "--clock", "virtual", "--record", str(out), *extra],
@@ -77,11 +88,45 @@ def test_two_shards_give_the_one_process_frames_and_received_bytes(tmp_path, one
     r = _run("--shards", "2", "--fleet", f"shard2{os.getpid()}r{run}", out=out)
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
     assert "complete: goal reached" in r.stdout
-    assert "lockstep window 30 ms" in r.stdout
+    assert "lockstep window 16.666 ms" in r.stdout
+    assert " 0 IR conflicts at the PC" in r.stdout
     got = _frames(out)
-    assert len(got) == len(one_process) > 2000
+    assert len(got) == len(one_process) > 1900  # 1967 since the O(n + d) bring-up
     assert got == one_process
     _same_received(out, one_process_received)
+    assert _conflicts(out) == []  # no receiver, in any process, had a correction too late
+
+
+def _ir_shards(tmp_path, *extra: str) -> dict:
+    fleet = f"irxy{os.getpid()}{len(extra)}"
+    procs = [subprocess.Popen([sys.executable, "-m", "tests.support.ir_shards", name, "--fleet", fleet,
+                               "--out", str(tmp_path / f"{name}.json"), *extra],
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+             for name in ("pc", "s0", "s1")]
+    for p in procs:
+        out, _ = p.communicate(timeout=120)
+        assert p.returncode == 0, out
+    return json.loads((tmp_path / "pc.json").read_text())
+
+
+def test_a_collision_across_shards_is_decoded_as_in_one_process(tmp_path):
+    """X (0x0F) from shard 0 at 25 ms and Y (0xF0) from shard 1 at 31 ms overlap at the PC:
+    one process decodes X as 0x00. The planner's process runs a window behind the shards, so
+    Y's correction of X is there before X's stop bit: the same byte, no conflict."""
+    from tests.support.ir_shards import one_process
+
+    reference = one_process(f"irxyref{os.getpid()}")
+    assert reference == [[58_333_333, 0x00, True]]
+    got = _ir_shards(tmp_path)
+    assert got["got"] == reference and got["conflicts"] == 0
+
+
+def test_a_correction_after_its_stop_bit_is_counted_as_a_conflict(tmp_path):
+    """The windows before the fix (30 ms, every participant in the same window): Y's correction
+    reaches the PC at 60 ms, after X's stop bit at 58.3 ms. X was delivered clean (0x0F) and
+    the receiver says so: one conflict."""
+    got = _ir_shards(tmp_path, "--no-lags", "--window-ns", "30000000")
+    assert got["got"] == [[58_333_333, 0x0F, False]] and got["conflicts"] == 1
 
 
 def test_shards_through_a_zenoh_router(tmp_path, one_process, one_process_received):
@@ -99,6 +144,7 @@ def test_shards_through_a_zenoh_router(tmp_path, one_process, one_process_receiv
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
     assert _frames(out) == one_process
     _same_received(out, one_process_received)
+    assert _conflicts(out) == []
 
 
 def test_a_killed_shard_ends_the_run_at_that_window_and_the_recording_keeps_the_rest(tmp_path, one_process):
@@ -126,7 +172,7 @@ def test_a_killed_shard_ends_the_run_at_that_window_and_the_recording_keeps_the_
     assert "Traceback" not in stderr
     assert ended < 15  # at the barrier it was waiting at (plus the grace for a last word)
     # a complete file (the recorder closed it) with every frame of the windows before
-    window_start = int(m.group(1)) * 30_000_000
+    window_start = int(m.group(1)) * window_ns(load("thesis-12").ir_baud)
     kept = [f for f in _frames(out) if f[0] < window_start]
     assert len(kept) > 100
     assert kept == [f for f in one_process if f[0] < window_start]
