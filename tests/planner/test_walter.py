@@ -1,0 +1,222 @@
+"""Walter, Tsai & Amato (seed 003): the PC's half (section 4) and the round model (section 5)."""
+
+from __future__ import annotations
+
+import networkx as nx
+import pytest
+
+from bus.lattice import Cell, Direction
+from planner_svc.planners.rules import find_move
+from planner_svc.planners.walter import (Inadmissible, RoundModel, build_h, candidates, check_chain, choose,
+                                         path_cost, path_violation, traverse_graph)
+from planner_svc.planners.walter.frame import Heading, turn
+from planner_svc.planners.walter.goals import generate
+from planner_svc.planners.walter.rounds import DELAYS, flips
+
+# Figure 8's DAG, as the goal it is H of: A in G_1 ... G in G_5 (our cells, orientation 0).
+A, B, C, D, E, F, G = (Cell(0, 0), Cell(1, 0), Cell(2, 0), Cell(2, -1), Cell(3, -1), Cell(3, -2),
+                       Cell(4, -2))
+FIG8 = frozenset({A, B, C, D, E, F, G})
+
+
+def chain_to(c0: Cell, heading: Heading, n: int) -> list[Cell]:
+    cells = [c0]
+    for _ in range(n - 1):
+        cells.append(heading.of(cells[-1]))
+    return cells[::-1]
+
+
+# --- section 4: H and TraverseGraph ---------------------------------------------------------
+def test_figure8_h_has_the_papers_edges():
+    h = build_h(FIG8)
+    assert set(h.graph.edges) == {(A, B), (B, C), (B, D), (C, E), (D, E), (D, F), (E, G), (F, G)}
+    assert h.roots() == [A]
+
+
+def test_figure8_traversal_order_and_costs():
+    # Figure 8 (b), (d), (f): A-B-C-E-G first (the cost-1 path of 8(b)), then from B through
+    # D and E, then from D through F.
+    paths = [(p.cells, p.cost) for p in traverse_graph(build_h(FIG8), A)]
+    assert paths == [((A, B, C, E, G), 1), ((A, B, D, E, G), 3), ((A, B, D, F, G), 2)]
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_traverse_graph_visits_every_root_to_leaf_path(seed):
+    g = generate(14 + 3 * seed, ("0", "1", ">1", "1")[seed], seed=seed, world_safe=False).goal
+    for k in range(6):
+        turned = frozenset(turn(c, k) for c in g)
+        try:
+            h = build_h(turned)
+        except (IndexError, ValueError):
+            continue  # columns not contiguous in this orientation
+        leaves = [v for v in h.graph if h.graph.out_degree(v) == 0]
+        for root in h.roots():
+            ours = sorted(p.cells for p in traverse_graph(h, root))
+            theirs = sorted(tuple(p) for leaf in leaves
+                            for p in nx.all_simple_paths(h.graph, root, leaf))
+            assert ours == theirs
+            for p in traverse_graph(h, root):
+                assert p.cost == path_cost(p.cells)
+
+
+def test_weights():
+    assert path_cost([A, B, Cell(2, 0), Cell(3, 0)]) == 0                 # straight NE
+    assert path_cost([A, B, C, E, G]) == 1                                # one bend
+    assert path_cost([A, B, D, F, G]) == 2                                # NE SE SE NE
+    assert path_cost([Cell(0, 0), Cell(1, -1), Cell(1, 0), Cell(2, 0)]) == 10 + 1  # a north edge
+
+
+# --- section 4: admissibility, each condition refused with its reason -----------------------
+def test_definition_2_1_no_westward_step():
+    why = path_violation([Cell(0, 0), Cell(1, 0), Cell(0, 1)], frozenset())
+    assert why.startswith("Definition 2.1") and "(1,0) -> (0,1) goes NW" in why
+
+
+def test_definition_2_2a_north_segment_corner_is_not_goal():
+    path = [Cell(0, 0), Cell(0, 1), Cell(1, 1)]
+    why = path_violation(path, frozenset(path) | {Cell(1, 0)})
+    assert why.startswith("Definition 2.2(a)") and "ending at (0,1)" in why and "(1,0)" in why
+
+
+def test_definition_2_2b_north_then_south_within_three_cells():
+    path = [Cell(0, 0), Cell(0, 1), Cell(1, 1), Cell(2, 1), Cell(2, 0)]
+    why = path_violation(path, frozenset(path))
+    assert why.startswith("Definition 2.2(b)") and "ending at (0,1)" in why
+
+
+def test_definition_2_3_south_segment():
+    path = [Cell(0, 0), Cell(0, -1), Cell(1, -2)]
+    why = path_violation(path, frozenset(path) | {Cell(1, -1)})
+    assert why.startswith("Definition 2.3(a)") and "(1,-1)" in why
+    path = [Cell(0, 0), Cell(0, -1), Cell(1, -2), Cell(2, -3), Cell(2, -2)]
+    assert path_violation(path, frozenset(path)).startswith("Definition 2.3(b)")
+
+
+def test_admissible_path_passes():
+    assert path_violation([A, B, C, E, G], FIG8) is None
+
+
+def test_definition_3_i_must_meet_g_in_one_cell_at_its_end():
+    goal = frozenset(chain_to(Cell(0, 0), Heading.NE, 4))
+    with pytest.raises(Inadmissible, match="meets G in 2 cells"):
+        check_chain(goal, [Cell(-2, 0), Cell(-1, 0), Cell(0, 0), Cell(1, 0)])
+    with pytest.raises(Inadmissible, match="not a straight chain"):
+        check_chain(goal, [Cell(-3, 0), Cell(-2, 0), Cell(-2, 1), Cell(0, 0)])
+    # Definition 3: p begins where I meets G, in G_1: orientations where it is not say so
+    _, why = candidates(goal, Cell(1, 0))
+    assert "orientation 0: Definition 3: I meets G at (1,0), not in the westernmost column G_1" in why
+
+
+def test_definition_4_an_orientation_without_admissible_substrate_path_says_where():
+    # In orientation 0 the only way east is down column 1 to (1,-3), and that south
+    # segment's corner cell Z = (3,-3) is a goal cell.
+    goal = frozenset({Cell(0, 0), Cell(1, -1), Cell(1, -2), Cell(1, -3), Cell(2, -4), Cell(3, -4),
+                      Cell(3, -3)})
+    _, why = candidates(goal)
+    assert why[0] == ("orientation 0: Definition 4: no admissible substrate path (no cell of "
+                      "column G_1 reaches G_m; Definition 2.3(a): no south edge (1,-2) -> (1,-3): "
+                      "(3,-3) is a goal cell (Figure 4: X, Y, Z))")
+    assert choose(goal, model=False).orientation == 3  # from the east it is admissible
+
+
+def test_columns_must_be_contiguous_in_some_orientation():
+    ring = frozenset(Cell(0, 0).neighbours())  # a ring of six: a gap in some column everywhere
+    with pytest.raises(Inadmissible) as exc:
+        choose(ring)
+    msg = str(exc.value)
+    assert msg.startswith("inadmissible goal: orientation 0: column ") and "\n" not in msg
+    assert "is not one contiguous north-south chain (gap at" in msg
+
+
+# --- section 5: the round model ---------------------------------------------------------------
+def replay(model: RoundModel) -> None:
+    """Independent checks of a run: cells never doubly occupied, each move a rotation of one
+    cell about an immobile neighbour adjacent to both cells, the goal reached."""
+    occupied = {m: c for m, c in enumerate(model.chain)}
+    for r in model.rounds:
+        cells = set(occupied.values())
+        moving = {mv.module for mv in r.moves}
+        targets = [mv.to_cell for mv in r.moves]
+        assert len(targets) == len(set(targets)), f"round {r.number}: two movers, one cell"
+        for mv in r.moves:
+            assert occupied[mv.module] == mv.from_cell
+            assert mv.to_cell not in cells
+            assert mv.from_cell.side_towards(mv.to_cell) is not None
+            assert mv.substrate in cells and mv.substrate not in {occupied[m] for m in moving}
+            assert mv.substrate.side_towards(mv.from_cell) and mv.substrate.side_towards(mv.to_cell)
+        for mv in r.moves:
+            occupied[mv.module] = mv.to_cell
+        assert len(set(occupied.values())) == len(occupied)
+    assert set(occupied.values()) == set(model.goal)
+
+
+def round_bound(model: RoundModel) -> int:
+    """Our bound (the paper's text gives none in closed form): every module is free at most
+    two rounds after the one before it leaves, waits its delay, and walks at most along I
+    (n - 1 cells) and once around G (at most 2n + 4 cells)."""
+    n = model.n
+    return sum(2 + e.delay for e in model.schedule.entries) + (n - 1) + (2 * n + 4)
+
+
+def test_straight_goal_paper_rules():
+    goal = chain_to(Cell(0, 0), Heading.NE, 6)[::-1]
+    model = RoundModel(goal, chain_to(Cell(0, 0), Heading.SW, 6), goal, rules="paper")
+    rep = model.report()
+    assert rep.reached and not rep.collisions and not rep.stuck
+    replay(model)
+    # (0,0)-bidirectional: module 0 leaves CW in round 1, module 1 CCW two rounds later
+    assert model.rounds[0].moves[0][:2] == (0, Direction.CW)
+    assert model.rounds[2].moves[1][:2] == (1, Direction.CCW)
+    assert rep.rounds <= round_bound(model)
+
+
+def test_straight_goal_hexbot_rules_are_legal_in_the_world():
+    goal = chain_to(Cell(0, 0), Heading.NE, 6)[::-1]
+    model = RoundModel(goal, chain_to(Cell(0, 0), Heading.SW, 6), goal)
+    rep = model.report()
+    assert rep.reached and not rep.collisions and not rep.world_refusals
+    paper = RoundModel(goal, chain_to(Cell(0, 0), Heading.SW, 6), goal, rules="paper").report()
+    # the paper's spacing (one empty cell between movers on a side) is too close for a HexBot
+    assert paper.world_refusals and paper.rounds < rep.rounds
+
+
+def test_isfree_flips():
+    assert flips([True, False, False, False, False, False]) == 2
+    assert flips([True, True, True, True, False, False]) == 2
+    assert flips([True, False, True, False, False, False]) == 4
+
+
+@pytest.mark.parametrize("cost_class", ["0", "1", ">1"])
+@pytest.mark.parametrize("n", [6, 11, 20])
+def test_generated_goals_reach_the_goal_without_collision(n, cost_class):
+    gen = generate(n, cost_class, seed=1)
+    c = gen.choice
+    assert c.candidate.cost_class == cost_class and len(gen.goal) == n
+    for rules in DELAYS:
+        model = RoundModel(gen.goal, c.chain, c.path, c.orientation, rules=rules)
+        rep = model.report()
+        assert rep.reached and not rep.collisions, (rules, rep.collisions[:3], rep.stuck)
+        replay(model)
+        assert rep.rounds <= round_bound(model)
+    model = RoundModel(gen.goal, c.chain, c.path, c.orientation)
+    model.run()
+    assert not model.world_refusals
+    # the world's rule, move by move, all moves of a round at once
+    occ = set(model.chain)
+    for r in model.rounds:
+        for mv in r.moves:
+            others = [find_move(occ, o.from_cell, o.to_cell, model.chain[-1]) for o in r.moves
+                      if o is not mv]
+            assert find_move(occ, mv.from_cell, mv.to_cell, model.chain[-1],
+                             concurrent=[o for o in others if o]) is not None
+        occ = (occ - {mv.from_cell for mv in r.moves}) | {mv.to_cell for mv in r.moves}
+
+
+def test_positions_are_learned_by_counting_passers():
+    gen = generate(12, "1", seed=2)
+    c = gen.choice
+    model = RoundModel(gen.goal, c.chain, c.path, c.orientation)
+    model.run()
+    final = model.rounds[-1].states
+    assert all(final[i].position == i for i in range(model.n - 1))
+    assert not any("counted" in x for x in model.collisions)
