@@ -662,6 +662,9 @@ class CommBoard(Mcu):
             else:
                 pivots.append((op, g))
                 w.passed(op, who)
+        # back to the centre when the windows are over: an answer's last byte is still on the
+        # wire when the program moves on (the multiplexer would cut it)
+        yield Delay(until(6 * window))
         self.IrSel(0)
         w.unanswered = plan is not None and not answered
         yield Delay(until(walter_actuation_at(baud)))

@@ -1102,6 +1102,9 @@ static uint8_t co_walter(const uint8_t *a)
             walter_passed(wside.op, wside.body[2]);
         }
     }
+    /* back to the centre when the windows are over: an answer's last byte is still on the
+     * wire when the program moves on (the multiplexer would cut it) */
+    WAIT_TICK(pt, window_at(7));
     IrSel(0);
     walter.unanswered = walter.plan && !wround.answered;
     WAIT_TICK(pt, wround_at(WALTER_ACTUATION_AT));

@@ -107,6 +107,9 @@ def _library() -> ctypes.CDLL:
     lib.core_power_up.argtypes = [p, u32, u64, u32, u32, p]
     lib.core_set_grammar.argtypes = [p, u32, u32, p, ctypes.c_char_p, p, p]
     lib.core_frame_receiver.argtypes = [p, i32, u32, u32, p]
+    lib.core_remove_modules.restype = lib.core_remove_receiver.restype = i32
+    lib.core_remove_modules.argtypes = [p, u32, u32]
+    lib.core_remove_receiver.argtypes = [p, i32]
     lib.core_put_light.restype = i32
     lib.core_put_light.argtypes = [p, u64, i32, u32, p, p, u32, p, u32, u32, p, u32]
     lib.core_next.restype = u64
@@ -177,8 +180,9 @@ class FleetCore:
         self._clock = weakref.ref(clock)  # the clock keeps its core (of), not the other way
         self.profile = profile
         self.lib = lib = _library()
-        # the same libraries as module_sim.firmware loads (one copy each in a process), and
-        # their state at power-up as it took it before any board ran
+        # the libraries module_sim.firmware loads (the core loads a private copy of each:
+        # their globals are its own), and their state at power-up as it took it before any
+        # board ran
         programs = [Program.get(board, profile) for board in ("control", "comm")]
         paths = [str(build_path("lib", board, profile)).encode() for board in ("control", "comm")]
         table = (ctypes.c_int8 * 256)(*[(-1 if (k := ir_selected(v)) is None else k) for v in range(256)])
@@ -191,7 +195,7 @@ class FleetCore:
         error = lib.core_error(self._h)
         if error:
             raise FirmwareError(error.decode())
-        self.modules: list[VirtualModule] = []  # by core index
+        self.modules: list[VirtualModule | None] = []  # by core index (None: its fleet left)
         self._fleets: dict[int, _Fleet] = {}  # id(world) -> its fleet
         self._rx: dict[int, tuple[_Fleet, str, int]] = {}  # receiver -> (fleet, endpoint, transceiver)
         self._rx_out: dict[int, tuple[Bus, str, str]] = {}  # receiver -> its bus, key and JSON part
@@ -234,6 +238,33 @@ class FleetCore:
                 self._rx[self.lib.core_receiver(self._h, first + k, t)] = (fleet, m.name, t)
         world.core = self
         self.routes_changed(world)
+
+    def remove_fleet(self, world: "World") -> None:
+        """Take ``world``'s fleet out of the core: what the core made for it so far is
+        published first, then its modules stop as at power-off (for good: their indexes are
+        not reused; a frame whose last byte would end later never ends), its light goes
+        nowhere and light still in the air to it is lost. The other fleets run on; the
+        world's own medium carries its light from then on."""
+        fleet = self._fleets.pop(id(world), None)
+        if fleet is None:
+            raise ValueError("this world's fleet is not in the core")
+        self._take_outputs()
+        self._publish_frames(self.clock.now_ns())
+        self._flush()
+        self._frames = [f for f in self._frames if f[2] is not fleet.bus or f[4].split(".")[0] not in fleet.index]
+        heapq.heapify(self._frames)
+        if fleet.modules and self.lib.core_remove_modules(self._h, fleet.modules[0].core_index, len(fleet.modules)):
+            raise FirmwareError("the fleet core refused to remove a fleet's modules")
+        for r in [r for r, (f, _, _) in self._rx.items() if f is fleet]:
+            if r in fleet.external_rx.values():
+                self.lib.core_remove_receiver(self._h, r)
+            del self._rx[r]
+            self._rx_out.pop(r, None)
+            self._framers.pop(r, None)
+        for m in fleet.modules:
+            self.modules[m.core_index] = None
+            m.core_index = -1
+        world.core = None
 
     def _receiver(self, fleet: _Fleet, dst: str, transceiver: int) -> int:
         """The core's index of a receiving transceiver (inside the core or outside)."""
@@ -288,6 +319,8 @@ class FleetCore:
         """Both boards of ``module`` power up now (FirmwareDriver.power_up, in the core)."""
         now = self.clock.now_ns()
         k = module.core_index
+        if k < 0:
+            raise FirmwareError(f"{module.name}'s fleet was removed from the fleet core")
         for b, mcu in ((2 * k, module.ctrl), (2 * k + 1, module.comm)):
             mcu._boot_ns = now
             pins = (ctypes.c_uint8 * 5)(*module.input_pins(mcu))
@@ -295,6 +328,8 @@ class FleetCore:
         self._after_call()
 
     def set_pins(self, module: "VirtualModule") -> None:
+        if module.core_index < 0:
+            return  # its fleet left the core: its boards are off for good
         pins = (ctypes.c_uint8 * 5)(*module.input_pins(module.comm))
         self.lib.core_set_pins(self._h, 2 * module.core_index + 1, ctypes.addressof(pins))
 

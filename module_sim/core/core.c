@@ -22,11 +22,14 @@
  * byte at its stop bit; of two garbled bytes overlapping on one line only the first to
  * complete forms a byte (bus/ir.py, IrReceiver).
  */
+#define _GNU_SOURCE /* memfd_create */
 #include <dlfcn.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
+#include <unistd.h>
 
 #include "hexbot_host.h"
 
@@ -57,6 +60,7 @@ typedef struct {
     hexbot_flush_fn *flush;
     uint8_t *power_on;
     const uint8_t *pullups; /* the program's program_pullups: its ports at power-up */
+    int fd; /* the anonymous file of the core's own copy of the library (open_private) */
 } prog_t;
 
 typedef struct {
@@ -67,6 +71,7 @@ typedef struct {
     uint8_t rx_n[2];
     uint8_t port[5];
     uint8_t on;
+    uint8_t gone; /* its module left the core (core_remove_modules): it never steps again */
 } board_t;
 
 typedef struct {
@@ -100,6 +105,7 @@ typedef struct {
     uint64_t longest;
     uint64_t line_busy; /* the end of the last byte delivered (IrReceiver._line_busy) */
     uint8_t has_busy;
+    uint8_t gone; /* left the core with its module or its fleet: light reaching it is lost */
     /* A framed receiver outside the core (core_frame_receiver): while its framer can only wait
      * for more bytes, a byte it gets stops nothing (see quiet_byte). */
     uint8_t framed;
@@ -167,7 +173,10 @@ typedef struct {
     char error[256];
 } core_t;
 
-static core_t *g_core; /* the core whose board is stepping: the library's flush hook needs it */
+/* The core whose board is stepping on this thread: the library's flush hook (no argument)
+ * needs it. Each core has its own copy of the libraries (load), so cores on two threads do
+ * not meet. */
+static _Thread_local core_t *g_core;
 
 #define GROW(ptr, n, cap, need)                                                                  \
     do {                                                                                         \
@@ -496,6 +505,8 @@ static void ir_done(core_t *c, uint32_t ri, int32_t mi)
         c->slot_free = si;
     }
     receiver_t *r = &c->rcv[ri];
+    if (r->gone)
+        return;
     /* two garbled bytes overlapping on one line are one byte: the first to complete carries it */
     if (bad && r->has_busy && start < r->line_busy)
         return;
@@ -625,6 +636,8 @@ static void step_board(core_t *c, uint32_t b)
 static void uart_receive(core_t *c, uint32_t b, int u, uint8_t byte)
 {
     board_t *bd = &c->boards[b];
+    if (bd->gone)
+        return;
     if (bd->rx_n[u] >= RX_DEPTH) { /* DOR: the byte waiting in the shift register is lost */
         out_t *o = out_new(c, OUT_OVERRUN, c->now, b);
         o->a = u;
@@ -643,8 +656,8 @@ static void dispatch(core_t *c, const ev_t *e)
     switch (e->kind) {
     case EV_WAKE: {
         board_t *bd = &c->boards[e->a];
-        if (e->b != bd->wake_gen)
-            return; /* cancelled: the program asked for another time since */
+        if (e->b != bd->wake_gen || bd->gone)
+            return; /* cancelled: the program asked for another time since, or it left */
         bd->wake_at = 0;
         step_board(c, e->a);
         return;
@@ -659,14 +672,40 @@ static void dispatch(core_t *c, const ev_t *e)
 }
 
 /* --- the API (module_sim/core/__init__.py) -------------------------------------------------- */
+/* A private copy of the host library at `path`: dlopen gives every caller of one file the
+ * same copy, whose globals (hexbot_io, hexbot_flush, the state area a step swaps in) would be
+ * shared by every core of the process and Python's drivers. A copy in an anonymous file is
+ * a library of its own. Its file stays open while it is loaded: dlopen knows a library by
+ * the name it was opened by first (/proc/self/fd/N), and N must not be reused meanwhile. */
+static void *open_private(core_t *c, prog_t *p, const char *path)
+{
+    FILE *in = fopen(path, "rb");
+    int fd = p->fd = memfd_create("hexbot-host", MFD_CLOEXEC);
+    void *lib = NULL;
+    if (in && fd >= 0) {
+        char buf[65536], name[64];
+        size_t n;
+        int ok = 1;
+        while (ok && (n = fread(buf, 1, sizeof buf, in)) > 0)
+            ok = write(fd, buf, n) == (ssize_t)n;
+        snprintf(name, sizeof name, "/proc/self/fd/%d", fd);
+        if (ok && !ferror(in))
+            lib = dlopen(name, RTLD_NOW | RTLD_LOCAL);
+    }
+    if (in)
+        fclose(in);
+    if (!lib)
+        snprintf(c->error, sizeof c->error, "cannot load a private copy of %s: %s", path,
+                 in && fd >= 0 ? dlerror() : "no file or no memfd_create");
+    return lib;
+}
+
 static int load(core_t *c, int k, const char *path, const uint8_t *power_on)
 {
     prog_t *p = &c->prog[k];
-    p->lib = dlopen(path, RTLD_NOW | RTLD_LOCAL);
-    if (!p->lib) {
-        snprintf(c->error, sizeof c->error, "cannot load %s: %s", path, dlerror());
+    p->lib = open_private(c, p, path);
+    if (!p->lib)
         return -1;
-    }
     size_t (*size)(void) = (size_t(*)(void))dlsym(p->lib, "hexbot_state_size");
     p->step = (void (*)(void *, uint64_t))dlsym(p->lib, "hexbot_step");
     p->setup = (void (*)(void *, uint64_t, uint32_t, uint32_t))dlsym(p->lib, "hexbot_setup");
@@ -700,6 +739,7 @@ core_t *core_new(const char *control_lib, const char *comm_lib, const uint8_t *c
         return NULL;
     c->stepping = -1;
     c->slot_free = c->mem_free = -1;
+    c->prog[0].fd = c->prog[1].fd = -1;
     if (load(c, 0, control_lib, control_power_on) || load(c, 1, comm_lib, comm_power_on))
         return c; /* core_error says why */
     memcpy(c->mux_table, mux_table, 256);
@@ -866,8 +906,13 @@ void core_free(core_t *c)
     free(c->mux);
     free(c->mux_at);
     free(c->route);
-    for (int k = 0; k < 2; k++)
-        free(c->prog[k].power_on); /* the libraries stay loaded: Python's drivers may share them */
+    for (int k = 0; k < 2; k++) {
+        free(c->prog[k].power_on);
+        if (c->prog[k].lib)
+            dlclose(c->prog[k].lib); /* the core's own copy */
+        if (c->prog[k].fd >= 0)
+            close(c->prog[k].fd);
+    }
     free(c);
 }
 
@@ -928,6 +973,39 @@ int32_t core_put_light(core_t *c, uint64_t t, int32_t src, uint32_t n_rcv, const
     return 0;
 }
 
+/* Modules first..first+n-1 leave the core (their fleet is removed): their boards stop as at
+ * power-off and never step again, their light goes nowhere, light still in the air to their
+ * receivers is lost. Their indexes are not reused. */
+int32_t core_remove_modules(core_t *c, uint32_t first, uint32_t n)
+{
+    if (first > c->n_modules || n > c->n_modules - first)
+        return -1;
+    for (uint32_t m = first; m < first + n; m++) {
+        for (uint32_t b = 2 * m; b < 2 * m + 2; b++) {
+            board_t *bd = &c->boards[b];
+            bd->on = 0;
+            bd->gone = 1;
+            bd->wake_gen++; /* its booked wake-up is void */
+            bd->wake_at = 0;
+            bd->rx_n[0] = bd->rx_n[1] = 0;
+        }
+        for (int k = 0; k < 7; k++) {
+            c->route[7 * m + k] = -1;
+            c->rcv[c->module_rx[7 * m + k]].gone = 1;
+        }
+    }
+    return 0;
+}
+
+/* A receiver outside the core leaves it (its fleet is removed). */
+int32_t core_remove_receiver(core_t *c, int32_t ri)
+{
+    if (ri < 0 || (uint32_t)ri >= c->n_receivers)
+        return -1;
+    c->rcv[ri].gone = 1;
+    return 0;
+}
+
 uint64_t core_next(core_t *c)
 {
     return c->heap_n ? c->heap[0].t : NO_TIME;
@@ -938,13 +1016,15 @@ void core_flush_ports(core_t *c)
 {
     for (uint32_t i = 0; i < c->n_dirty; i++) {
         uint32_t m = c->dirty[i];
+        c->ports_dirty[m] = 0;
+        if (c->boards[2 * m].gone)
+            continue;
         uint8_t ports[10];
         memcpy(ports, c->boards[2 * m].port, 5);
         memcpy(ports + 5, c->boards[2 * m + 1].port, 5);
         out_t *o = out_new(c, OUT_PORTS, c->now, m);
         o->off = out_put_bytes(c, ports, NULL, 10);
         o->n = 10;
-        c->ports_dirty[m] = 0;
     }
     c->n_dirty = 0;
 }

@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 from toolchain import needs_avr
+from wall_clock import heard
 
 ROOT = Path(__file__).resolve().parents[2]
 pytestmark = [needs_avr, pytest.mark.wall_clock]  # wall clock: tests/support/wall_clock.py
@@ -52,7 +53,7 @@ def runs(tmp_path_factory):
 
 
 def _finish(proc, where: Path):
-    out, _ = proc.communicate(timeout=300)
+    out = heard(proc.communicate(timeout=300)[0])
     with open(where / "run.mcap", "rb") as f:
         recs = [(ch.topic, json.loads(m.data)) for _, ch, m in make_reader(f).iter_messages()
                 if ch.message_encoding == "json"]  # not the foxglove/* channels

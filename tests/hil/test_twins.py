@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pytest
 from mcap.reader import make_reader
+from wall_clock import heard
 
 pytestmark = pytest.mark.wall_clock  # tests/support/wall_clock.py
 
@@ -70,7 +71,7 @@ class Run:
     def wait(self) -> "Run":
         if self.code is None:
             try:
-                self.out, _ = self.proc.communicate(timeout=RUN_TIMEOUT_S)
+                self.out = heard(self.proc.communicate(timeout=RUN_TIMEOUT_S)[0])
                 self.code = self.proc.returncode
             finally:
                 self.proc.kill()

@@ -2,8 +2,9 @@
 for them and they fail with one line that says how slow.
 
 A fleet on the wall clock says when it falls behind (``lag: the fleet ran N ms behind the wall
-clock``, :class:`hexbench.fleet.LagNotice` from :class:`module_sim.fleet.LagWatch`), and this
-process watches its own timers the same way while each such test runs. A failure that comes
+clock``, :class:`hexbench.fleet.LagNotice` from :class:`module_sim.fleet.LagWatch`) in the
+output a test reads (:func:`heard`, or its failure message), and this process watches its own
+timers the same way while each such test runs. A failure that comes
 with lag past the watcher's threshold is reported as that one line (the load average with it);
 one without is reported as it is: a fault of the program, not of the machine.
 """
@@ -44,6 +45,17 @@ class TimerLag:
         return self.worst_ns
 
 
+#: the output of the runs the current test read (:func:`heard`): their lag lines count
+_HEARD: list[str] = []
+
+
+def heard(output: str) -> str:
+    """A wall-clock run's output, as the test reads it: its lag lines name the machine's lag
+    if the test fails (whatever its assertion shows). Returns ``output``."""
+    _HEARD.append(output)
+    return output
+
+
 def fleet_lag_ms(text: str) -> int:
     """The worst lag a fleet said in ``text`` (a run's output in a failure message), or 0."""
     return max((int(ms) for ms in _FLEET_LAG.findall(text)), default=0)
@@ -68,6 +80,7 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None):
     watch = TimerLag() if item.get_closest_marker(MARKER) is not None else None
     if watch is not None:
         item.stash[_WATCH] = watch
+        _HEARD.clear()
     yield
     if watch is not None:
         watch.stop()
@@ -80,7 +93,7 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo):
     report = outcome.get_result()
     if watch is None or not report.failed:
         return
-    line = too_slow(fleet_lag_ms(str(report.longrepr)), watch.worst_ns)
+    line = too_slow(fleet_lag_ms("\n".join([str(report.longrepr), *_HEARD])), watch.worst_ns)
     if line is not None:
         report.longrepr = line
 

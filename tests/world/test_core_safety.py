@@ -235,3 +235,84 @@ def test_a_burst_waiting_in_the_inbox_enters_the_core_at_its_own_instant():
     forced, forced_events = _light_at(t, True, True)
     assert forced_events == python_events
     assert forced == python
+
+
+def _boot(name: str, n: int, until_ns: int, frames: list[tuple]) -> None:
+    """A fleet of ``n`` firmware modules on its own clock and core, booted to ``until_ns``."""
+    clock = VirtualClock()
+    session = open_session(SessionOptions(isolated=True))
+    bus = Bus(clock, name, session=session)
+    try:
+        bus.subscribe_frames(lambda e: frames.append((e.sim_time_ns, e.src, e.link, e.first_byte_ns, e.raw)))
+        fleet = Fleet(bus, block_scenarios(n, "firmware")[0])
+        assert fleet.core is not None
+        fleet.power_up()
+        clock.run(until_ns=until_ns)
+    finally:
+        bus.close()
+        session.close()
+
+
+def test_two_cores_in_one_process_run_at_once_as_each_alone():
+    """Each clock has its own core; the firmware's host libraries (their io block, flush hook
+    and state area) were one copy per process, shared by every core: two cores stepping on
+    two threads at once (ctypes lets go of the GIL) garbled each other's steps."""
+    import threading
+
+    alone: list[tuple] = []
+    _boot("corealone", 12, 4 * NS_PER_S, alone)
+    assert len(alone) > 100
+    got: list[list[tuple]] = [[], []]
+    threads = [threading.Thread(target=_boot, args=(f"coretwo{k}", 12, 4 * NS_PER_S, got[k])) for k in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=300)
+    assert sorted(got[0]) == sorted(alone) and sorted(got[1]) == sorted(alone)
+
+
+def test_a_fleet_leaves_the_core_and_the_others_run_on():
+    """Fleets A and B on one core; B is removed at 3 s and C added at 4 s: A's frames are
+    those of A alone, B makes nothing after it left, C boots as it would alone (shifted by
+    its power-up)."""
+    until = 8 * NS_PER_S
+    alone: list[tuple] = []
+    _boot("corealoneA", 6, until, alone)
+    clock = VirtualClock()
+    session = open_session(SessionOptions(isolated=True))
+    buses = {k: Bus(clock, f"corealone{k}", session=session) for k in "ABC"}
+    frames: dict[str, list[tuple]] = {k: [] for k in buses}
+    try:
+        for k, bus in buses.items():
+            bus.subscribe_frames(lambda e, k=k: frames[k].append((e.sim_time_ns, e.src, e.link, e.first_byte_ns,
+                                                                  e.raw)))
+        a = Fleet(buses["A"], block_scenarios(6, "firmware")[0])
+        b = Fleet(buses["B"], block_scenarios(5, "firmware")[0])
+        assert a.core is b.core is not None
+        core = a.core
+        a.power_up()
+        b.power_up()
+        clock.run(until_ns=3 * NS_PER_S)
+        assert frames["B"]
+        core.remove_fleet(b.world)
+        left_at = clock.now_ns()
+        made = len(frames["B"])
+        clock.run(until_ns=4 * NS_PER_S)
+        c = Fleet(buses["C"], block_scenarios(4, "firmware")[0])
+        assert c.core is core
+        c.power_up()
+        clock.run(until_ns=until)
+        assert sorted(frames["A"]) == sorted(alone)
+        assert len(frames["B"]) == made and all(f[0] <= left_at for f in frames["B"])
+        c_alone: list[tuple] = []
+        _boot("corealoneC", 4, until - 4 * NS_PER_S, c_alone)
+        shifted = sorted((t + 4 * NS_PER_S, src, link, first + 4 * NS_PER_S, raw)
+                         for t, src, link, first, raw in c_alone)
+        assert len(shifted) > 20 and sorted(frames["C"]) == shifted
+        assert all(m is None for m in core.modules[6:11]) and core.lib.core_error(core._h) == b""
+        with pytest.raises(ValueError):
+            core.remove_fleet(b.world)
+    finally:
+        for bus in buses.values():
+            bus.close()
+        session.close()

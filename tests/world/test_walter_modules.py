@@ -156,3 +156,25 @@ def test_each_module_logs_every_round_on_its_debug_uart(chain3):
     assert [v["moved"] for v in m2] == [False, False, True, False]
     assert m2[-1]["position"] == 1 and m2[-1]["direction"] == "CCW" and m2[2]["stopped"]
     assert all(v["anchor"] and not v["moved"] for v in by_module["m1"])
+
+
+def test_the_flashed_images_make_the_same_frames_in_simavr(chain3):
+    """The AVR images in simavr cores: every wire carries the model's frames, in the same
+    order (times differ by design: each board's own tick grid and UBRR-exact baud rates,
+    docs/firmware.md), and the world sees the same moves."""
+    sim = _run(CHAIN3.replace('program = "model"', 'program = "simavr"'), CHAIN3_PROBLEM)
+    try:
+        def per_wire(rig):
+            wires: dict[tuple[str, str], list[bytes]] = {}
+            for f in rig.frames:
+                wires.setdefault((f.link, f.src), []).append(f.raw)
+            return wires
+        model, flashed = per_wire(chain3), per_wire(sim)
+        differ = [w for w in sorted(set(model) | set(flashed)) if model.get(w) != flashed.get(w)]
+        assert not differ, f"wires that differ: {differ[:4]}"
+        assert sim.result.rounds == chain3.result.rounds and sim.result.done
+        moves = [(e.module, tuple(e.data["to"])) for e in sim.events if e.kind == "move-completed"]
+        assert moves == [(e.module, tuple(e.data["to"])) for e in chain3.events
+                         if e.kind == "move-completed"]
+    finally:
+        sim.close()
