@@ -212,6 +212,21 @@ def test_generated_goals_reach_the_goal_without_collision(n, cost_class):
         occ = (occ - {mv.from_cell for mv in r.moves}) | {mv.to_cell for mv in r.moves}
 
 
+@pytest.mark.parametrize("cost_class", ["0", "1", ">1"])
+def test_sixty_modules_every_cost_class(cost_class):
+    # The paper's claims at the top of the range: reached, no collision, within the bound, with
+    # its own delays and ours (HexBot-world legality at this size is not asked: see docs).
+    gen = generate(60, cost_class, seed=1, world_safe=False)
+    c = gen.choice
+    assert len(gen.goal) == 60 and c.candidate.cost_class == cost_class
+    for rules in DELAYS:
+        model = RoundModel(gen.goal, c.chain, c.path, c.orientation, rules=rules)
+        rep = model.report()
+        assert rep.reached and not rep.collisions, (rules, rep.collisions[:3], rep.stuck)
+        replay(model)
+        assert rep.rounds <= round_bound(model)
+
+
 def test_positions_are_learned_by_counting_passers():
     gen = generate(12, "1", seed=2)
     c = gen.choice
