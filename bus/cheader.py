@@ -152,6 +152,7 @@ def header() -> str:
         f"#define LOCALIZE_STEP_TICKS {timing.localize_step_ticks(timing.Baud.IR)}",
         "/* a Walter round at the IR baud rate (ticks from the beat), its rotation timing */",
         f"#define WALTER_MUX_SETTLE_TICKS {timing.WALTER_MUX_SETTLE_TICKS}",
+        f"#define WALTER_LATE_AT {timing.walter_late_at(timing.Baud.IR)}",
         f"#define WALTER_HOLD_END_AT {timing.walter_hold_end_at(timing.Baud.IR)}",
         f"#define WALTER_WINDOW_TICKS {timing.walter_window_ticks(timing.Baud.IR)}",
         f"#define WALTER_ACTUATION_AT {timing.walter_actuation_at(timing.Baud.IR)}",

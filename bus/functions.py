@@ -190,6 +190,7 @@ class WalterOp(IntEnum):
     HOLD = 1  # open the pin that holds me during the actuation
     PIVOT_CW = 2  # be my substrate: SCW about the pivot next to me
     PIVOT_CCW = 3  # be my substrate: SCCW
+    LATE = 4  # (an answer) yes, in the late slot: I turn a mover beside you first
 
 
 #: Walter log line flags (the ``flags`` byte of ``WalterLog``).

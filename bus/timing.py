@@ -112,11 +112,16 @@ WALTER_WINDOW_GUARD_TICKS = 3
 #: After the last window, before the actuation: a JxOpen a mover relayed in the last window
 #: has left the control board's debug UART (its ACK and MSG lines, about 50 ms).
 WALTER_RELAY_GUARD_TICKS = 8
-#: Holders open their pin at the actuation's start and close it this much later: after the
-#: break-away (relay, t1 and 3 ticks: about 20 ticks), before the rotation's end.
+#: A second mover about a substrate that already turns one from the side next to it starts
+#: this much after the actuation: the substrate's first rotation is over (relay and debug lines
+#: about 6 ticks, t1 + t2 + t3 = 21), so its two repelling sides are never on together.
+WALTER_LATE_TICKS = 32
+#: Holders close their pins this much after the late slot: after its break-away (relay, t1
+#: and 3 ticks: about 20 ticks), before the rotation's end.
 WALTER_HOLD_TICKS = 25
-#: The actuation: relay and debug lines (about 6 ticks), t1, the 220 ms rotation, the switches.
-WALTER_ACTUATION_TICKS = 45
+#: The actuation, from its start: the late slot, its rotation (about 27 ticks), the 220 ms
+#: turn to the arrival, the holders' closing relay and the switches.
+WALTER_ACTUATION_TICKS = 70
 #: The log line's relay and the control board's printing of it, before the busy slot.
 WALTER_LOG_TICKS = 8
 WALTER_BUSY_GUARD_TICKS = 2
@@ -171,9 +176,14 @@ def walter_actuation_at(baud: int) -> int:
     return 6 * walter_window_ticks(baud) + WALTER_RELAY_GUARD_TICKS
 
 
+def walter_late_at(baud: int) -> int:
+    """Ticks from the beat to the late slot of a second mover about one substrate."""
+    return walter_actuation_at(baud) + WALTER_LATE_TICKS
+
+
 def walter_hold_end_at(baud: int) -> int:
-    """Ticks from the beat to when holders close their pin again."""
-    return walter_actuation_at(baud) + WALTER_HOLD_TICKS
+    """Ticks from the beat to when holders close their pins again."""
+    return walter_late_at(baud) + WALTER_HOLD_TICKS
 
 
 def walter_log_at(baud: int) -> int:

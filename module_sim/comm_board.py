@@ -23,7 +23,8 @@ from bus.timing import (BOOT_CIRCLE_ROUNDS, BOOT_CIRCLE_TICKS, BOOT_FLASH_ROUNDS
                         THESIS_LOCALIZE_REPEATS, THESIS_LOCALIZE_ROUNDS, THESIS_LOCALIZE_SEND_TICKS,
                         THESIS_ROTATION_TIMING, WALTER_MUX_SETTLE_TICKS, YREF_FLASH_TICKS, YREF_SHOWS,
                         Baud, localize_slot_ticks, localize_step_ticks, localize_window_ticks,
-                        walter_actuation_at, walter_busy_at, walter_hold_end_at, walter_log_at,
+                        walter_actuation_at, walter_busy_at, walter_hold_end_at, walter_late_at,
+                        walter_log_at,
                         walter_window_ticks)
 
 from .avr import TIMEOUT, Delay, Mcu, Program, Rx, Tx, Uart
@@ -623,6 +624,7 @@ class CommBoard(Mcu):
         requests = plan.requests() if plan is not None else {}
         window = walter_window_ticks(baud)
         answered = True
+        late = False  # its substrate turns it in the late slot
         pivots: list[tuple[WalterOp, Side]] = []  # asked to be a substrate: op, mover's side
         opened = False  # a pin of its own opened for a neighbour that moves
         for g in Side:
@@ -634,7 +636,9 @@ class CommBoard(Mcu):
                 yield Delay(until((g - 1) * window + WALTER_MUX_SETTLE_TICKS))
                 yield Tx(u1, codec.encode_walter_request(op, w.position))
                 got = yield from self._walter_side(codec.WALTER_ANSWER_TAG[0], left, end, 2)
-                if got is None or got[0] != op:
+                if got is not None and op is not WalterOp.HOLD and got[0] is WalterOp.LATE:
+                    late = True
+                elif got is None or got[0] != op:
                     answered = False
                 elif op is WalterOp.HOLD:  # and open its own pin on that side
                     yield from self._relay_mirrored(F.JxOpen, int(Joint.of(g + 1 - self.Yref)))
@@ -652,10 +656,12 @@ class CommBoard(Mcu):
             op, who = heard
             if plan is not None and op is not WalterOp.HOLD:
                 continue  # a mover is nobody's substrate (it opens its own pin to a mover)
-            if op is not WalterOp.HOLD and pivots and (
-                    len(pivots) == 2 or not walter_pivots_apart(pivots[0][1], g)):
-                continue  # two repelling sides side by side would drive this module itself
-            yield Tx(u1, codec.encode_walter_answer(op))
+            if op is WalterOp.LATE or (op is not WalterOp.HOLD and len(pivots) == 2):
+                continue  # a substrate turns two movers at most
+            # a second mover beside the first: its turn comes late, after the first's (their
+            # two repelling sides on together would be a drive pair of this module's own)
+            slow = op is not WalterOp.HOLD and bool(pivots) and not walter_pivots_apart(pivots[0][1], g)
+            yield Tx(u1, codec.encode_walter_answer(WalterOp.LATE if slow else op))
             if op is WalterOp.HOLD:  # the pin at the end of the side facing the mover
                 yield from self._relay_mirrored(F.JxOpen, int(Joint.of(facing + 1 - self.Yref)))
                 opened = True
@@ -669,6 +675,8 @@ class CommBoard(Mcu):
         w.unanswered = plan is not None and not answered
         yield Delay(until(walter_actuation_at(baud)))
         if plan is not None and answered:
+            if late:
+                yield Delay(until(walter_late_at(baud)))
             mi = int(Joint.of(plan.joint - self.Yref))
             code = F.MCW if plan.cw else F.MCCW
             yield from self._rotate(code, 0, True, mi, *THESIS_ROTATION_TIMING)
@@ -679,9 +687,12 @@ class CommBoard(Mcu):
             turns = [(op is WalterOp.PIVOT_CW,
                       int(Joint.of((g if op is WalterOp.PIVOT_CW else g + 1) - self.Yref)))
                      for op, g in pivots]
-            if len(turns) == 1:
-                cw, si = turns[0]
-                yield from self._rotate(0, F.SCW if cw else F.SCCW, False, si, *THESIS_ROTATION_TIMING)
+            if len(turns) == 1 or not walter_pivots_apart(pivots[0][1], pivots[1][1]):
+                for k, (cw, si) in enumerate(turns):  # one after the other: the late slot
+                    if k:
+                        yield Delay(until(walter_late_at(baud)))
+                    yield from self._rotate(0, F.SCW if cw else F.SCCW, False, si,
+                                            *THESIS_ROTATION_TIMING)
             else:
                 dirs = sum(int(cw) << k for k, (cw, _) in enumerate(turns))
                 yield from self._relay_mirrored(F.STwo, dirs, turns[0][1], turns[1][1])

@@ -78,10 +78,10 @@ def plan_move(contacts: list[bool], cw: bool, pivot: Side) -> Plan | None:
 
 def walter_pivots_apart(first: Side, second: Side) -> bool:
     """Whether a substrate can turn a second mover (across its global side ``second`` + 3)
-    in the round it turns one across ``first`` + 3: not twice the same side, and not two
-    sides side by side: each turn makes the side facing its mover negative, and two negative
-    sides that meet at a joint are a drive pair, which would turn the substrate itself
-    (docs/physics.md). So a substrate turns at most two movers, one on each flank."""
+    at the same time as one across ``first`` + 3 (``STwo``): not from sides side by side.
+    Each turn makes the side facing its mover negative, and two negative sides that meet at a
+    joint are a drive pair, which would turn the substrate itself (docs/physics.md); such a
+    second mover turns in the late slot instead."""
     return (second - first) % 6 not in (0, 1, 5)
 
 

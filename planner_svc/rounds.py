@@ -46,6 +46,15 @@ class RoundsResult:
     busy: list[int]  # per round, the frames heard in its busy slot
 
 
+def problem_of(choice, model) -> WalterProblem:
+    """What the fleet is given for a :class:`planner_svc.planners.walter.Choice`: its round
+    model's schedule (every position's goal, direction and delay)."""
+    from bus.lattice import Direction
+    entries = tuple((a.goal, a.direction is Direction.CW, a.delay) for a in model.schedule.entries)
+    cost = choice.cost
+    return WalterProblem(len(choice.goal), len(choice.path), min(cost, 2), choice.chain[-1], entries)
+
+
 def to_module_frame(scenario: Scenario, cell: Cell) -> Cell:
     """A scenario cell in the modules' frame: the reference (the fixed module) at (0, 0)
     with its orientation 0 (the inverse of ``BringUp.to_global``)."""

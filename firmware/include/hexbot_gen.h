@@ -38,12 +38,13 @@
 #define LOCALIZE_STEP_TICKS 1944
 /* a Walter round at the IR baud rate (ticks from the beat), its rotation timing */
 #define WALTER_MUX_SETTLE_TICKS 2
-#define WALTER_HOLD_END_AT 207
+#define WALTER_LATE_AT 214
+#define WALTER_HOLD_END_AT 239
 #define WALTER_WINDOW_TICKS 29
 #define WALTER_ACTUATION_AT 182
-#define WALTER_LOG_AT 227
-#define WALTER_BUSY_AT 235
-#define WALTER_ROUND_TICKS 241
+#define WALTER_LOG_AT 252
+#define WALTER_BUSY_AT 260
+#define WALTER_ROUND_TICKS 266
 #define WALTER_ROTATION_TICKS {8, 4, 9}
 #define UART0_UBRR 12
 #define DEBUG_UBRR 12
@@ -301,6 +302,7 @@
 #define WALTER_OP_HOLD 1
 #define WALTER_OP_PIVOT_CW 2
 #define WALTER_OP_PIVOT_CCW 3
+#define WALTER_OP_LATE 4
 #define WALTER_FLAG_FREE 1
 #define WALTER_FLAG_MOVED 2
 #define WALTER_FLAG_CW 4

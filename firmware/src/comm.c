@@ -980,7 +980,7 @@ static uint8_t co_walter_side(uint8_t tag, uint16_t end)
         RX_TL(pt, UART1, ticks_until(end), wside.body[wside.k]);
     }
     if ((uint8_t)(wside.body[0] ^ wside.body[1]) == 0xFF && wside.body[0] >= WALTER_OP_HOLD
-        && wside.body[0] <= WALTER_OP_PIVOT_CCW)
+        && wside.body[0] <= WALTER_OP_LATE)
         wside.op = wside.body[0];
     PT_END(pt);
 }
@@ -1023,7 +1023,7 @@ static struct {
     pt_t pt;
     uint16_t t0, round;
     uint16_t end; /* the tick this window ends on */
-    uint8_t c, g, op, answered, opened, npivots, pivot_op[2], pivot_g[2], args[4], dirs;
+    uint8_t c, g, op, answered, late, opened, npivots, pivot_op[2], pivot_g[2], args[4], dirs, k;
 } wround;
 
 static uint16_t wround_at(uint16_t ticks)
@@ -1052,7 +1052,7 @@ static uint8_t co_walter(const uint8_t *a)
         if (neighbour(s))
             wround.c |= (uint8_t)(1u << (fold((int16_t)s + Yref) - 1));
     walter_decide(wround.c);
-    wround.answered = 1, wround.opened = 0, wround.npivots = 0;
+    wround.answered = 1, wround.late = 0, wround.opened = 0, wround.npivots = 0;
     for (wround.g = 1; wround.g <= 6; wround.g++) {
         wround.op = 0;
         if (walter.plan && wround.answered) {
@@ -1068,7 +1068,9 @@ static uint8_t co_walter(const uint8_t *a)
             WAIT_TICK(pt, (uint16_t)(window_at(wround.g) + WALTER_MUX_SETTLE_TICKS));
             LINE_SEND(pt, line_walter(BYTE_WALTER_REQUEST, wround.op, walter.position, 1));
             PT_CALL(pt, co_walter_side(BYTE_WALTER_ANSWER, wround.end));
-            if (wside.op != wround.op) {
+            if (wround.op != WALTER_OP_HOLD && wside.op == WALTER_OP_LATE) {
+                wround.late = 1;
+            } else if (wside.op != wround.op) {
                 wround.answered = 0;
             } else if (wround.op == WALTER_OP_HOLD) { /* and open its own pin on that side */
                 mirrored_args(fold((int16_t)wround.g + 1 - Yref), 0, 0);
@@ -1088,10 +1090,13 @@ static uint8_t co_walter(const uint8_t *a)
             continue;
         if (walter.plan && wside.op != WALTER_OP_HOLD)
             continue; /* a mover is nobody's substrate (it opens its own pin to a mover) */
-        if (wside.op != WALTER_OP_HOLD && wround.npivots
-            && (wround.npivots == 2 || !walter_apart(wround.pivot_g[0], wround.g)))
-            continue; /* two repelling sides side by side would drive this module itself */
-        LINE_SEND(pt, line_walter(BYTE_WALTER_ANSWER, wside.op, 0, 0));
+        if (wside.op == WALTER_OP_LATE || (wside.op != WALTER_OP_HOLD && wround.npivots == 2))
+            continue; /* a substrate turns two movers at most */
+        /* a second mover beside the first: its turn comes late, after the first's (their two
+         * repelling sides on together would be a drive pair of this module's own) */
+        wround.op = wside.op != WALTER_OP_HOLD && wround.npivots && !walter_apart(wround.pivot_g[0], wround.g)
+                        ? WALTER_OP_LATE : wside.op;
+        LINE_SEND(pt, line_walter(BYTE_WALTER_ANSWER, wround.op, 0, 0));
         if (wside.op == WALTER_OP_HOLD) { /* the pin at the end of the side facing the mover */
             mirrored_args(fold((int16_t)wround.g + 4 - Yref), 0, 0);
             PT_CALL(pt, co_relay_mirrored(FC_JxOpen));
@@ -1109,6 +1114,9 @@ static uint8_t co_walter(const uint8_t *a)
     walter.unanswered = walter.plan && !wround.answered;
     WAIT_TICK(pt, wround_at(WALTER_ACTUATION_AT));
     if (walter.plan && wround.answered) {
+        if (wround.late) {
+            WAIT_TICK(pt, wround_at(WALTER_LATE_AT));
+        }
         wround.args[0] = fold((int16_t)walter.joint - Yref);
         PT_CALL(pt, co_rotate(walter.cw ? FC_MCW : FC_MCCW, wround.args[0], WALTER_T[0], WALTER_T[1], WALTER_T[2]));
         walter.px = X + fw_sbyte(&NB_DX[walter.sub]), walter.py = Y + fw_sbyte(&NB_DY[walter.sub]);
@@ -1118,9 +1126,14 @@ static uint8_t co_walter(const uint8_t *a)
         /* the pivot in this body: the mover's joint (g for CW, g + 1 for CCW) - Yref */
         for (uint8_t k = 0; k < wround.npivots; k++)
             wround.args[k] = fold((int16_t)wround.pivot_g[k] + (wround.pivot_op[k] == WALTER_OP_PIVOT_CW ? 0 : 1) - Yref);
-        if (wround.npivots == 1) {
-            PT_CALL(pt, co_rotate(wround.pivot_op[0] == WALTER_OP_PIVOT_CW ? FC_SCW : FC_SCCW, wround.args[0],
-                                  WALTER_T[0], WALTER_T[1], WALTER_T[2]));
+        if (wround.npivots == 1 || !walter_apart(wround.pivot_g[0], wround.pivot_g[1])) {
+            for (wround.k = 0; wround.k < wround.npivots; wround.k++) { /* the second: the late slot */
+                if (wround.k) {
+                    WAIT_TICK(pt, wround_at(WALTER_LATE_AT));
+                }
+                PT_CALL(pt, co_rotate(wround.pivot_op[wround.k] == WALTER_OP_PIVOT_CW ? FC_SCW : FC_SCCW,
+                                      wround.args[wround.k], WALTER_T[0], WALTER_T[1], WALTER_T[2]));
+            }
         } else {
             wround.dirs = (uint8_t)((wround.pivot_op[0] == WALTER_OP_PIVOT_CW)
                                     | (wround.pivot_op[1] == WALTER_OP_PIVOT_CW) << 1);

@@ -5,7 +5,8 @@
 two-module firmware fleet on it and feeds its world hypothesis-made bursts: well formed, too
 long for a board, with start times, corrupt flags and byte times that disagree with the
 bytes or do not fit. Each one is taken or refused with ValueError (a ``bad-sample`` event
-when it comes from elsewhere); the core then runs on. The same lengths go straight to C too
+when it comes from elsewhere); the core then runs on. At the end the fleet leaves the core
+with light still in the air to it. The same lengths go straight to C too
 (``core_put_light`` must refuse what Python would have). Prints one line of counts.
 
 ``--canary``: hand C a ``starts`` shorter than the length it is told (the bug this guards):
@@ -108,6 +109,15 @@ def main(argv: list[str] | None = None) -> int:
         assert clock.error is None, clock.error
 
     feed()
+    # the fleet leaves the core with light still in the air to it; the core runs on
+    windows = core.windows
+    fleet.world._on_ir("hexbot/corefuzz/ir/tx/pc", json.dumps(
+        {"src": "pc", "burst": 99, "transceiver": 0, "data": "55" * 40, "type": "burst", "byte_ns": BYTE_NS,
+         "starts": [clock.now_ns() + i * BYTE_NS for i in range(40)]}).encode())
+    core.remove_fleet(fleet.world)
+    core._after_call()
+    clock.run(until_ns=clock.now_ns() + 10**9)
+    assert clock.error is None and core.windows > windows, (clock.error, core.windows)
     bus.close()
     print(" ".join(f"{k} {v}" for k, v in counts.items()), f"windows {core.windows}")
     return 0

@@ -13,7 +13,8 @@ from bus.lattice import Cell
 from bus.messages import Pose, WorldEvent
 from bus.scenario import loads
 from planner_svc.bringup import BringUp
-from planner_svc.rounds import RoundDriver, WalterProblem
+from planner_svc.planners.walter import choose
+from planner_svc.rounds import RoundDriver, WalterProblem, problem_of
 
 from fleet_rig import FleetRig
 
@@ -41,15 +42,14 @@ orientation = 5
 """
 #: Position 0 (m3) rolls CW over the top into (0, 1) in three rounds (round the end of I,
 #: into the groove, over the anchor); position 1 (m2) is free in round 3 (m3 has left the
-#: groove beside it) and asks at once to go CCW under the anchor into (0, -1). In round 3 both
-#: would turn about the anchor from two sides that meet at a joint, which would make the
-#: anchor's two repelling sides a drive pair of its own: the anchor answers the first to ask
-#: (m2, in the window of global direction 3; m3 asks in window 4), so m2 goes, m3 waits a
-#: round (its log line says a request went unanswered) and goes over the anchor in round 4.
-#: m2 and m3, side by side in round 3, each open their own pin on the other.
+#: groove beside it) and goes at once, CCW under the anchor into (0, -1). In round 3 both
+#: turn about the anchor from two sides that meet at a joint: their repelling sides on
+#: together would be a drive pair of the anchor's own, so the anchor turns the first to ask
+#: (m2, window 3) at once and the second (m3, window 4) in the late slot. m2 and m3, side by
+#: side in round 3, each open their own pin on the other.
 CHAIN3_PROBLEM = WalterProblem(3, 2, 0, Cell(0, 0), ((Cell(0, 1), True, 0), (Cell(0, -1), False, 0)))
 CHAIN3_MOVES = [(1, "m3", "CW", (-2, 1)), (2, "m3", "CW", (-1, 1)), (3, "m2", "CCW", (0, -1)),
-                (4, "m3", "CW", (0, 1))]
+                (3, "m3", "CW", (0, 1))]
 
 
 class Rig(FleetRig):
@@ -72,13 +72,17 @@ class Rig(FleetRig):
         self.poses[p.module] = p
 
 
-def _run(toml: str, problem: WalterProblem) -> Rig:
+def _run_problem(toml: str, problem: WalterProblem, limit: int = 8) -> Rig:
     rig = Rig(toml)
     rig.mark = len(rig.frames)
     rig.driver.upload(problem)
     rig.starts = []  # sim time of each round's end
-    rig.result = rig.driver.run(8, progress=lambda r, heard: rig.starts.append(rig.clock.now_ns()))
+    rig.result = rig.driver.run(limit, progress=lambda r, heard: rig.starts.append(rig.clock.now_ns()))
     return rig
+
+
+def _run(toml: str, problem: WalterProblem) -> Rig:
+    return _run_problem(toml, problem)
 
 
 @pytest.fixture(scope="module")
@@ -125,9 +129,9 @@ def test_moves_round_by_round(chain3):
 
 
 def test_the_pc_stops_at_the_first_silent_busy_slot(chain3):
-    # m3 arrives last, in round 4: its busy slot is silent
-    assert chain3.result.done and chain3.result.rounds == 4
-    assert all(chain3.result.busy[:3]) and chain3.result.busy[3] == 0
+    # both arrive in round 3: its busy slot is silent
+    assert chain3.result.done and chain3.result.rounds == 3
+    assert all(chain3.result.busy[:2]) and chain3.result.busy[2] == 0
 
 
 def test_no_frame_per_move_crosses_the_centre_channel(chain3):
@@ -147,13 +151,13 @@ def test_each_module_logs_every_round_on_its_debug_uart(chain3):
     assert sorted(by_module) == ["m1", "m2", "m3"]
     assert all(len(v) == chain3.result.rounds for v in by_module.values())
     m3, m2 = by_module["m3"], by_module["m2"]
-    assert [v["position"] for v in m3] == [0] * 4 and all(v["direction"] == "CW" for v in m3)
-    assert [v["moved"] for v in m3] == [True, True, False, True] and m3[3]["stopped"]
-    assert [v["unanswered"] for v in m3] == [False, False, True, False]
+    assert [v["position"] for v in m3] == [0] * 3 and all(v["direction"] == "CW" for v in m3)
+    assert [v["moved"] for v in m3] == [True, True, True] and m3[2]["stopped"]
+    assert not any(v["unanswered"] for v in m3)
     # m2 waits in I while m3 rounds the end (which turns about it twice and is counted once),
     # is free in round 3 and goes CCW from position 1
-    assert [v["free"] for v in m2] == [False, False, True, True]
-    assert [v["moved"] for v in m2] == [False, False, True, False]
+    assert [v["free"] for v in m2] == [False, False, True]
+    assert [v["moved"] for v in m2] == [False, False, True]
     assert m2[-1]["position"] == 1 and m2[-1]["direction"] == "CCW" and m2[2]["stopped"]
     assert all(v["anchor"] and not v["moved"] for v in by_module["m1"])
 
@@ -178,3 +182,38 @@ def test_the_flashed_images_make_the_same_frames_in_simavr(chain3):
                          if e.kind == "move-completed"]
     finally:
         sim.close()
+
+
+# --- held to the round model (planner_svc.planners.walter, the reference) ----------------------
+def _scenario_of(choice, program: str) -> str:
+    """I as the modules (m1 the free end, the anchor last and fixed), G the goal."""
+    goal = ", ".join(f"[{g.x}, {g.y}]" for g in sorted(choice.goal))
+    mods = "".join(f"[[modules]]\nid = {i + 1}\ncell = [{c.x}, {c.y}]\norientation = {(2 * i + 1) % 6}\n"
+                   for i, c in enumerate(choice.chain))
+    anchor = choice.chain[-1]
+    return (f'name = "walter-held"\nprofile = "v2"\nprogram = "{program}"\n'
+            f"fixed = [{anchor.x}, {anchor.y}]\ngoal = [{goal}]\n{mods}")
+
+
+@pytest.mark.parametrize("program", ["model", "firmware"])
+def test_the_fleet_moves_as_the_round_model_round_by_round(program):
+    """A cost-1 goal (a bend in the substrate path, a column north of it): which module, which
+    direction, to which cell, in which round, as the round model says; no refusal; the PC
+    stops in the round the model's last module arrives."""
+    goal = [Cell(0, 0), Cell(1, 0), Cell(2, -1), Cell(1, 1)]
+    choice = choose(goal)
+    model = choice.model()
+    model.run()
+    rig = _run_problem(_scenario_of(choice, program), problem_of(choice, model), limit=len(model.rounds) + 3)
+    try:
+        bad = [(e.kind, e.module, e.data.get("detail")) for e in rig.events if e.kind in ("move-refused", "fault")]
+        assert not bad
+        position = {f"m{i + 1}": i for i in range(len(choice.chain))}
+        fleet = sorted((_round_of(rig, e.sim_time_ns), position[e.module], e.data["direction"],
+                        tuple(e.data["to"])) for e in rig.events if e.kind == "move-completed")
+        expected = sorted((r.number, mv.module, mv.direction.value, (mv.to_cell.x, mv.to_cell.y))
+                          for r in model.rounds for mv in r.moves)
+        assert fleet == expected
+        assert rig.result.done and rig.result.rounds == len(model.rounds)
+    finally:
+        rig.close()
