@@ -34,6 +34,9 @@ KINDS = ("virtual", "real", "firmware")
 #: for the host ("firmware", module_sim.firmware) or the flashed images in simavr cores
 #: in-process ("simavr", module_sim.simavr).
 PROGRAMS = ("model", "firmware", "simavr")
+#: Planners a scenario may ask for (``planner = "walter"``); planner_svc registers them
+#: (tests/planner/test_walter.py holds the two lists equal).
+PLANNERS = ("thesis-serial", "thesis-parallel", "exact", "complete", "walter")
 #: The programs built for 300 baud IR (their localization slots are in ticks of it).
 C_PROGRAMS = ("firmware", "simavr")
 #: What a virtual module runs when neither its scenario nor its entry says (``program`` None):
@@ -91,6 +94,7 @@ class Scenario:
     faults: list[ActuatorFault] = field(default_factory=list)  # injected by the world
     #: what virtual modules run unless a module says otherwise; None: the default (above C_PROGRAMS)
     program: str | None = None
+    planner: str | None = None  # the planner the scenario is made for (None: the command's)
 
     def program_of(self, module: ModuleSpec) -> str | None:
         return module.program or self.program
@@ -194,6 +198,8 @@ SCHEMA: dict[str, Any] = {
         "fixed": _CELL,
         "obstacles": _CELLS,
         "program": _PROGRAM,
+        "planner": {"description": "a planner: " + ", ".join(repr(p) for p in PLANNERS),
+                    "enum": list(PLANNERS)},
         "ir_baud": {"description": "a positive baud rate", "type": "integer", "minimum": 1},
         "bit_error_rate": {"description": "a probability 0 <= p < 1", "type": "number",
                            "minimum": 0, "maximum": 1, "exclusiveMaximum": True},
@@ -228,7 +234,7 @@ def _build(d: dict[str, Any], source: str, text: str) -> Scenario:
                     profile=profile, seed=d.get("seed", 0),
                     description=d.get("description", ""), source=source, ir_baud=ir_baud,
                     bit_error_rate=float(d.get("bit_error_rate", 0.0)), faults=faults,
-                    program=program)
+                    program=program, planner=d.get("planner"))
 
 
 # --- where a problem is: keys to lines ---------------------------------------------------
@@ -331,7 +337,13 @@ def _schema_error(exc: fastjsonschema.JsonSchemaValueException, d: dict[str, Any
         return at.error(f"key '{_dotted((*path, k))}' is missing: expected "
                         f"{node['properties'][k]['description']}", path)
     depth = max(n for n, node in enumerate(nodes) if "description" in node)
-    return at.expected(path[:depth], nodes[depth]["description"], _at(d, path[:depth]))
+    value = _at(d, path[:depth])
+    expected = nodes[depth]["description"]
+    if exc.rule == "enum" and isinstance(value, str):
+        close = difflib.get_close_matches(value, [str(v) for v in nodes[depth]["enum"]], n=1)
+        if close:
+            expected += f" (did you mean {close[0]!r}?)"
+    return at.expected(path[:depth], expected, value)
 
 
 def _cell(v: list[int], key: Key, at: _Where) -> Cell:

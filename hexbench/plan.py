@@ -13,8 +13,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "estimated energy and every move (joint, direction, substrate, "
                                    "joints the neighbours release).")
     p.add_argument("scenario", nargs="?", help="a built-in scenario name or a .toml file")
-    p.add_argument("--planner", default="thesis-serial",
-                   help="planner name (see --list); default thesis-serial")
+    p.add_argument("--planner", default=None,
+                   help="planner name (see --list); default the scenario's, else thesis-serial")
     p.add_argument("--png", help="also draw the plan, one panel per step, to this PNG file")
     p.add_argument("--list", action="store_true", help="list the planners and exit")
     p.set_defaults(func=cmd_plan)
@@ -51,22 +51,34 @@ def cmd_plan(args: argparse.Namespace) -> int:
     if not args.scenario:
         raise UsageError("give a scenario (see 'hexbench scenarios') or --list")
     try:
-        planner = planners.get(args.planner)
+        scenario = load(args.scenario)
+    except ScenarioError as exc:
+        raise UsageError(str(exc)) from None
+    name = args.planner or scenario.planner or "thesis-serial"
+    try:
+        planner = planners.get(name)
     except planners.UnknownPlanner as exc:
         raise UsageError(str(exc)) from None
     try:
-        scenario = load(args.scenario)
         plan = planner.plan(scenario)
-    except (ScenarioError, PlanError) as exc:
+    except PlanError as exc:
         raise UsageError(str(exc)) from None
     validate(plan)  # every planner's output goes through the one rule; a failure is a bug
     print(plan.summary())
+    early = plan.notes if name == "walter" else []  # its substrate path and rounds come first
+    for note in early:
+        print(f"note: {note}")
     for n, step in enumerate(plan.steps, 1):
         for mv in step:
             print(f"step {n:3}: {mv.describe()}")
-    for note in plan.notes:
+    for note in plan.notes[len(early):]:
         print(f"note: {note}")
-    if args.png:
+    if args.png and name == "walter":
+        from planner_svc.planners.walter import choose
+        from planner_svc.planners.walter.draw import draw_walter
+        if plan.ok or plan.steps:
+            print(f"drawing: {draw_walter(choose(plan.problem.goal, sorted(plan.problem.initial)), args.png)}")
+    elif args.png:
         from planner_svc.planners.draw import draw_plan
         print(f"drawing: {draw_plan(plan, args.png)}")
     try:

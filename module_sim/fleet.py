@@ -9,6 +9,7 @@ import gc
 import random
 from typing import TYPE_CHECKING
 
+from bus.cheader import FirmwareError
 from bus.clock import VirtualClock, WallClock
 from bus.keys import module_endpoint
 from bus.scenario import Scenario
@@ -131,7 +132,10 @@ class Fleet:
             refusal = f"the C programs are built for {int(Baud.IR)} baud IR, not {scenario.ir_baud}"
         if refusal is None:
             firmware = dataclasses.replace(scenario, program="firmware")
-            refusal = Fleet.core_refusal(bus, firmware, mux_cut, profile)
+            try:
+                refusal = Fleet.core_refusal(bus, firmware, mux_cut, profile)
+            except FirmwareError as exc:  # no host build of the firmware or of the core here
+                refusal = str(exc)
             if refusal is None:
                 return firmware, None
         return (dataclasses.replace(scenario, program="model"),

@@ -1,12 +1,16 @@
-"""The recorder's compiled batch path for frames (``native/framebatch.c``, loaded with ctypes).
+"""The recorder's compiled batch path for frames and actuator records (``native/framebatch.c``, loaded
+with ctypes).
 
 A frame costs the pure-Python recorder a few microseconds (its fields read by a regex, two
 records packed, indexed and counted, its Foxglove line stamped); a fleet puts hundreds of
 thousands a second. :class:`FrameBatch` hands a whole batch of frame envelopes to C, which
 writes the records :meth:`recordings.recorder.Recorder.write` would (the same bytes, sequence
 numbers, chunk offsets) and stops whenever Python must act: a sample that is not an envelope
-as the bus writes it, a channel or a Foxglove line not seen yet, a full chunk.
-:func:`index_records` writes a chunk's MessageIndex records.
+as the bus writes it, a channel or a Foxglove line not seen yet, a full chunk. It writes an
+actuator record too once Python wrote the same bytes but the time on that channel and the
+coils are the channel's last (:meth:`FrameBatch.record_seen`): what the careful path would
+write, count by topic and derive nothing from. :func:`index_records` writes a chunk's
+MessageIndex records.
 
 The library is built with ``make -C recordings/native`` when missing or older than its source
 (only a C compiler is needed). Without it — no compiler, or ``HEXBENCH_NATIVE=0`` — :data:`LIB`

@@ -12,15 +12,14 @@
  * module_sim.firmware does from Python. Geometry stays in Python: it gives each module's
  * routes (which receiver the light of each transceiver reaches) and the multiplexer's table.
  *
- * The medium is module_sim/air.py's model, kept exactly (docs/physics.md): bytes in the air at
- * a receiver are grouped by exact time span (a slot); a new byte that overlaps a slot holding
- * another transmitter's bytes arrives as the AND of itself and what they were sent as, and each
- * of them becomes the AND of itself and the new byte (so no order of arrival changes a byte's
- * value: it is the AND of what it and every byte overlapping it were sent as). A slot keeps the
- * values of its hits in order so that a member's value is its own AND every hit since it
- * joined, read in O(8): a pile-up of n bytes costs O(n), not O(n^2). A receiver delivers a
- * byte at its stop bit; of two garbled bytes overlapping on one line only the first to
- * complete forms a byte (bus/ir.py, IrReceiver).
+ * The medium is module_sim/air.py's model, kept exactly (docs/physics.md): the line at a
+ * receiver is low while any carrier holds it low (a start bit or a 0 data bit), and the
+ * receiver's USART reads each data bit of a byte as the majority of three samples mid-bit on
+ * that line. The receiver keeps the line's low spans merged, so a byte's value is 24 lookups
+ * at its stop bit, whatever the number of carriers in flight: a pile-up costs O(bytes log), not
+ * O(carriers x bytes). A byte is garbled when another transmitter's byte overlaps it. A
+ * receiver delivers a byte at its stop bit; of two garbled bytes overlapping on one line only
+ * the first to complete forms a byte (bus/ir.py, IrReceiver).
  */
 #define _GNU_SOURCE /* memfd_create */
 #include <dlfcn.h>
@@ -74,32 +73,30 @@ typedef struct {
     uint8_t gone; /* its module left the core (core_remove_modules): it never steps again */
 } board_t;
 
-typedef struct {
-    int32_t slot;  /* its slot, -1 when free */
+typedef struct { /* a byte in the air at a receiver */
+    uint64_t start, end;
     int32_t src;
-    uint32_t join_hits;
-    uint8_t join_value, join_corrupt;
-    uint16_t pad;
+    uint8_t sent, corrupt_in, done; /* done: its stop bit has been */
+    uint8_t pad;
     int32_t next_free;
 } member_t;
 
 typedef struct {
-    uint64_t start, end;
-    int32_t first_src;
-    uint8_t multi;        /* members from two or more transmitters */
-    uint8_t and_sent;     /* AND of the members' values as sent */
-    uint8_t pad;
-    uint32_t hits;
-    int32_t last_zero[8]; /* per bit: the last hit with that bit 0, -1 none */
-    int32_t *members;
-    uint32_t n_members, cap_members, alive;
-    int32_t receiver;
-    int32_t next_free;
-} slot_t;
+    uint64_t a, b;
+} span_t;
+
+typedef struct { /* a span a transmitter's light covers at a receiver (touching bytes merged) */
+    uint64_t a, b;
+    int32_t src, pad;
+} run_t;
 
 typedef struct {
-    int32_t *slots; /* in flight, sorted by (start, end) */
+    int32_t *air; /* bytes in the air (members), sorted by (start, end) */
     uint32_t n, cap;
+    span_t *low; /* where the line is held low: disjoint spans, sorted */
+    uint32_t n_low, cap_low;
+    run_t *runs; /* the transmitters' light, for a collision's sources */
+    uint32_t n_runs, cap_runs;
     int32_t module;     /* the core's module whose transceiver this is, -1: outside the core */
     int32_t k;          /* its transceiver */
     uint64_t longest;
@@ -143,9 +140,6 @@ typedef struct {
     uint64_t now;
     /* medium */
     receiver_t *rcv;
-    slot_t *slot_pool;
-    uint32_t slot_cap, slot_used;
-    int32_t slot_free;
     member_t *mem_pool;
     uint32_t mem_cap, mem_used;
     int32_t mem_free;
@@ -160,8 +154,10 @@ typedef struct {
     uint32_t bytes_n, bytes_cap;
     int32_t *out_srcs;
     uint32_t srcs_n, srcs_cap;
-    uint8_t *scratch; /* medium_add's values and corrupt flags of a burst (any length) */
+    uint8_t *scratch; /* medium_add's values of a burst (any length) */
     uint32_t scratch_n, scratch_cap;
+    span_t *burst_runs; /* medium_add's burst, touching bytes merged */
+    uint32_t burst_runs_n, burst_runs_cap;
     int stop;
     int stepping; /* the board whose step runs (hexbot_flush) */
     /* the framer grammar of framed receivers (core_set_grammar): patterns, -1 a free byte */
@@ -274,31 +270,6 @@ static uint32_t out_put_bytes(core_t *c, const uint8_t *data, const uint64_t *st
 }
 
 /* --- the medium ------------------------------------------------------------------------------- */
-static int32_t slot_alloc(core_t *c)
-{
-    int32_t s;
-    if (c->slot_free >= 0) {
-        s = c->slot_free;
-        c->slot_free = c->slot_pool[s].next_free;
-    } else {
-        GROW(c->slot_pool, c->slot_used, c->slot_cap, 1);
-        s = (int32_t)c->slot_used++;
-        c->slot_pool[s].members = NULL;
-        c->slot_pool[s].cap_members = 0;
-    }
-    slot_t *sl = &c->slot_pool[s];
-    int32_t *keep = sl->members;
-    uint32_t keep_cap = sl->cap_members;
-    memset(sl, 0, sizeof *sl);
-    sl->members = keep;
-    sl->cap_members = keep_cap;
-    sl->first_src = -1;
-    sl->and_sent = 0xFF;
-    for (int k = 0; k < 8; k++)
-        sl->last_zero[k] = -1;
-    return s;
-}
-
 static int32_t mem_alloc(core_t *c)
 {
     int32_t m;
@@ -312,28 +283,18 @@ static int32_t mem_alloc(core_t *c)
     return m;
 }
 
-static uint8_t member_value(const core_t *c, const member_t *mb)
-{
-    const slot_t *sl = &c->slot_pool[mb->slot];
-    uint8_t v = mb->join_value;
-    for (int k = 0; k < 8; k++)
-        if (sl->last_zero[k] >= (int32_t)mb->join_hits)
-            v &= (uint8_t)~(1u << k);
-    return v;
-}
-
 static uint32_t *mark_of(core_t *c, int32_t src)
 {
     return src >= EXT_SRC ? &c->ext_mark[src - EXT_SRC] : &c->src_mark[src];
 }
 
-/* first slot of r with start >= t (slots sorted by (start, end)) */
-static uint32_t slot_lower(const core_t *c, const receiver_t *r, uint64_t t, uint64_t end)
+/* first byte in r's air with (start, end) >= (t, end) */
+static uint32_t air_lower(const core_t *c, const receiver_t *r, uint64_t t, uint64_t end)
 {
     uint32_t lo = 0, hi = r->n;
     while (lo < hi) {
         uint32_t mid = (lo + hi) / 2;
-        const slot_t *s = &c->slot_pool[r->slots[mid]];
+        const member_t *s = &c->mem_pool[r->air[mid]];
         if (s->start < t || (s->start == t && s->end < end))
             lo = mid + 1;
         else
@@ -342,102 +303,219 @@ static uint32_t slot_lower(const core_t *c, const receiver_t *r, uint64_t t, uin
     return lo;
 }
 
-/* A burst reaches receiver `ri`: collide with what is in the air (air.py Air.collide), then put
- * its bytes in the air (Air.add) and book their deliveries. */
+/* Is r's line low at t (some carrier in a start bit or a 0 data bit)? */
+static int line_low(const receiver_t *r, uint64_t t)
+{
+    uint32_t lo = 0, hi = r->n_low; /* the first span starting after t */
+    while (lo < hi) {
+        uint32_t mid = (lo + hi) / 2;
+        if (r->low[mid].a <= t)
+            lo = mid + 1;
+        else
+            hi = mid;
+    }
+    return lo > 0 && r->low[lo - 1].b > t;
+}
+
+/* A carrier holds r's line low from a to b: merge the span in (air.py Air._hold_low). */
+static void hold_low(receiver_t *r, uint64_t a, uint64_t b)
+{
+    uint32_t lo = 0, hi = r->n_low; /* i: the first span ending at or after a */
+    while (lo < hi) {
+        uint32_t mid = (lo + hi) / 2;
+        if (r->low[mid].b < a)
+            lo = mid + 1;
+        else
+            hi = mid;
+    }
+    uint32_t i = lo, j = i; /* j: past the spans starting at or before b */
+    while (j < r->n_low && r->low[j].a <= b)
+        j++;
+    if (i < j) {
+        if (r->low[i].a < a)
+            a = r->low[i].a;
+        if (r->low[j - 1].b > b)
+            b = r->low[j - 1].b;
+        r->low[i].a = a;
+        r->low[i].b = b;
+        memmove(r->low + i + 1, r->low + j, (size_t)(r->n_low - j) * sizeof *r->low);
+        r->n_low -= j - i - 1;
+        return;
+    }
+    GROW(r->low, r->n_low, r->cap_low, 1);
+    memmove(r->low + i + 1, r->low + i, (size_t)(r->n_low - i) * sizeof *r->low);
+    r->low[i].a = a;
+    r->low[i].b = b;
+    r->n_low++;
+}
+
+/* A byte's carrier: its start bit and each run of 0 data bits hold the line low (bit time j
+ * spans start + j*byte_ns/10 .. start + (j+1)*byte_ns/10; air.py low_spans). */
+static void hold_byte(receiver_t *r, uint64_t start, uint64_t byte_ns, uint8_t sent)
+{
+    uint32_t j = 0;
+    while (j < 9) {
+        if (j == 0 || !(sent >> (j - 1) & 1)) {
+            uint32_t k = j + 1;
+            while (k < 9 && !(sent >> (k - 1) & 1))
+                k++;
+            hold_low(r, start + j * byte_ns / 10, start + k * byte_ns / 10);
+            j = k;
+        } else {
+            j++;
+        }
+    }
+}
+
+/* What the USART reads of a byte sent as `sent` from `start`: each data bit the majority of
+ * its samples 8, 9 and 10 of 16 on the line (air.py sample_times). */
+static uint8_t uart_value(const receiver_t *r, uint64_t start, uint64_t byte_ns, uint8_t sent)
+{
+    uint8_t v = sent;
+    for (uint32_t k = 0; k < 8; k++) {
+        if (!(sent >> k & 1))
+            continue;
+        int lows = 0;
+        for (uint64_t s = 7; s <= 9; s++)
+            lows += line_low(r, start + (16 * (k + 1) + s) * byte_ns / 160);
+        if (lows >= 2)
+            v &= (uint8_t)~(1u << k);
+    }
+    return v;
+}
+
+/* Does another transmitter's byte overlap start..end at r? */
+static int overlapped(const core_t *c, const receiver_t *r, int32_t src, uint64_t start, uint64_t end)
+{
+    uint64_t from = start + 1 > r->longest ? start + 1 - r->longest : 0;
+    for (uint32_t j = air_lower(c, r, from, 0); j < r->n; j++) {
+        const member_t *mb = &c->mem_pool[r->air[j]];
+        if (mb->start >= end)
+            break;
+        if (mb->end > start && mb->src != src)
+            return 1;
+    }
+    return 0;
+}
+
+/* Forget what no byte still to come or still to complete can meet: a byte completing now
+ * began at now - longest at the earliest. */
+static void medium_forget(core_t *c, receiver_t *r)
+{
+    uint64_t horizon = c->now > r->longest ? c->now - r->longest : 0;
+    uint32_t k = 0;
+    while (k < r->n_low && r->low[k].b <= horizon)
+        k++;
+    if (k) {
+        memmove(r->low, r->low + k, (size_t)(r->n_low - k) * sizeof *r->low);
+        r->n_low -= k;
+    }
+    k = 0;
+    while (k < r->n) {
+        member_t *mb = &c->mem_pool[r->air[k]];
+        if (!mb->done || mb->start + r->longest > horizon)
+            break;
+        mb->next_free = c->mem_free;
+        c->mem_free = r->air[k];
+        k++;
+    }
+    if (k) {
+        memmove(r->air, r->air + k, (size_t)(r->n - k) * sizeof *r->air);
+        r->n -= k;
+    }
+}
+
+/* A burst reaches receiver `ri` (air.py Air.collide, then Air.add): its bytes' values on the
+ * line as it is now (for the collision event), the sources it meets, then its carrier on the
+ * line and its bytes in the air, each delivered at its stop bit. */
 static void medium_add(core_t *c, int32_t ri, int32_t src, const uint8_t *data, const uint64_t *starts,
                        uint32_t n, uint32_t byte_ns, const uint8_t *corrupt_in)
 {
     receiver_t *r = &c->rcv[ri];
+    medium_forget(c, r);
+    if (byte_ns > r->longest)
+        r->longest = byte_ns;
     /* a burst is carried whole: light from outside the core may be longer than a board's */
     c->scratch_n = 0;
-    GROW(c->scratch, c->scratch_n, c->scratch_cap, 2 * n);
-    uint8_t *values = c->scratch, *corrupt = c->scratch + n;
+    GROW(c->scratch, c->scratch_n, c->scratch_cap, n);
+    uint8_t *values = c->scratch;
     int any_hit = 0;
-    uint32_t first_src_off = c->srcs_n;
-    c->mark++;
+    c->burst_runs_n = 0;
     for (uint32_t i = 0; i < n; i++) {
         uint64_t start = starts[i], end = start + byte_ns;
-        uint8_t v = data[i], acc = v;
-        int hit = 0;
-        uint64_t from = start + 1 > r->longest ? start + 1 - r->longest : 0;
-        for (uint32_t j = slot_lower(c, r, from, 0); j < r->n; j++) {
-            slot_t *sl = &c->slot_pool[r->slots[j]];
-            if (sl->start >= end)
-                break;
-            if (sl->end <= start)
-                continue;
-            if (!sl->multi && (sl->first_src < 0 || sl->first_src == src))
-                continue; /* empty, or only this transmitter's own byte (one UART) */
-            hit = 1;
-            acc &= sl->and_sent;
-            /* the slot's sources, for the collision event */
-            for (uint32_t k = 0; k < sl->n_members; k++) {
-                int32_t s = c->mem_pool[sl->members[k]].src;
-                uint32_t *mk = mark_of(c, s);
-                if (*mk != c->mark) {
-                    *mk = c->mark;
-                    GROW(c->out_srcs, c->srcs_n, c->srcs_cap, 1);
-                    c->out_srcs[c->srcs_n++] = s;
-                }
-            }
-            for (int k = 0; k < 8; k++)
-                if (!(v >> k & 1))
-                    sl->last_zero[k] = (int32_t)sl->hits;
-            sl->hits++;
+        values[i] = uart_value(r, start, byte_ns, data[i]);
+        any_hit |= overlapped(c, r, src, start, end);
+        span_t *last = c->burst_runs_n ? &c->burst_runs[c->burst_runs_n - 1] : NULL;
+        if (last && start <= last->b) {
+            if (end > last->b)
+                last->b = end;
+        } else {
+            GROW(c->burst_runs, c->burst_runs_n, c->burst_runs_cap, 1);
+            c->burst_runs[c->burst_runs_n].a = start;
+            c->burst_runs[c->burst_runs_n++].b = end;
         }
-        values[i] = hit ? acc : v;
-        corrupt[i] = (uint8_t)(hit || (corrupt_in && corrupt_in[i]));
-        any_hit |= hit;
+    }
+    /* the transmitters whose light meets this burst's (each run checked once, not per byte) */
+    uint64_t horizon = c->now > r->longest ? c->now - r->longest : 0;
+    uint32_t first_src_off = c->srcs_n;
+    c->mark++;
+    for (uint32_t j = 0; j < r->n_runs;) {
+        run_t *ru = &r->runs[j];
+        if (ru->b <= horizon) { /* over: forget it */
+            *ru = r->runs[--r->n_runs];
+            continue;
+        }
+        j++;
+        if (!any_hit || ru->src == src || *mark_of(c, ru->src) == c->mark)
+            continue;
+        uint32_t lo = 0, hi = c->burst_runs_n; /* the first of the burst's runs ending after a */
+        while (lo < hi) {
+            uint32_t mid = (lo + hi) / 2;
+            if (c->burst_runs[mid].b <= ru->a)
+                lo = mid + 1;
+            else
+                hi = mid;
+        }
+        if (lo < c->burst_runs_n && c->burst_runs[lo].a < ru->b) {
+            *mark_of(c, ru->src) = c->mark;
+            GROW(c->out_srcs, c->srcs_n, c->srcs_cap, 1);
+            c->out_srcs[c->srcs_n++] = ru->src;
+        }
     }
     if (any_hit) {
-        if (*mark_of(c, src) != c->mark) {
-            GROW(c->out_srcs, c->srcs_n, c->srcs_cap, 1);
-            c->out_srcs[c->srcs_n++] = src;
-        }
+        GROW(c->out_srcs, c->srcs_n, c->srcs_cap, 1);
+        c->out_srcs[c->srcs_n++] = src;
         out_t *o = out_new(c, OUT_COLLISION, c->now, (uint32_t)ri);
         o->a = src;
         o->off = first_src_off;
         o->n = (int32_t)(c->srcs_n - first_src_off);
         o->off2 = out_put_bytes(c, values, NULL, n);
         o->n2 = n;
-    } else {
-        c->srcs_n = first_src_off;
     }
-    if (byte_ns > r->longest)
-        r->longest = byte_ns;
+    GROW(r->runs, r->n_runs, r->cap_runs, c->burst_runs_n);
+    for (uint32_t j = 0; j < c->burst_runs_n; j++) {
+        run_t *ru = &r->runs[r->n_runs++];
+        ru->a = c->burst_runs[j].a;
+        ru->b = c->burst_runs[j].b;
+        ru->src = src;
+        ru->pad = 0;
+    }
+    GROW(r->air, r->n, r->cap, n);
     for (uint32_t i = 0; i < n; i++) {
         uint64_t start = starts[i], end = start + byte_ns;
-        uint32_t j = slot_lower(c, r, start, end);
-        int32_t si;
-        if (j < r->n && c->slot_pool[r->slots[j]].start == start && c->slot_pool[r->slots[j]].end == end) {
-            si = r->slots[j];
-        } else {
-            si = slot_alloc(c);
-            r = &c->rcv[ri];
-            c->slot_pool[si].start = start;
-            c->slot_pool[si].end = end;
-            c->slot_pool[si].receiver = ri;
-            GROW(r->slots, r->n, r->cap, 1);
-            memmove(r->slots + j + 1, r->slots + j, (size_t)(r->n - j) * sizeof *r->slots);
-            r->slots[j] = si;
-            r->n++;
-        }
+        hold_byte(r, start, byte_ns, data[i]);
         int32_t mi = mem_alloc(c);
-        slot_t *sl = &c->slot_pool[si];
         member_t *mb = &c->mem_pool[mi];
-        mb->slot = si;
+        mb->start = start;
+        mb->end = end;
         mb->src = src;
-        mb->join_hits = sl->hits;
-        mb->join_value = values[i];
-        mb->join_corrupt = corrupt[i];
-        GROW(sl->members, sl->n_members, sl->cap_members, 1);
-        sl->members[sl->n_members++] = mi;
-        sl->alive++;
-        sl->and_sent &= data[i];
-        if (sl->first_src < 0)
-            sl->first_src = src;
-        else if (sl->first_src != src)
-            sl->multi = 1;
+        mb->sent = data[i];
+        mb->corrupt_in = (uint8_t)(corrupt_in && corrupt_in[i]);
+        mb->done = 0;
+        uint32_t j = air_lower(c, r, start, end);
+        memmove(r->air + j + 1, r->air + j, (size_t)(r->n - j) * sizeof *r->air);
+        r->air[j] = mi;
+        r->n++;
         push(c, end, EV_IRDONE, (uint32_t)ri, (uint32_t)mi);
     }
 }
@@ -482,31 +560,15 @@ static int quiet_byte(core_t *c, receiver_t *r, uint8_t v)
 static void ir_done(core_t *c, uint32_t ri, int32_t mi)
 {
     member_t *mb = &c->mem_pool[mi];
-    int32_t si = mb->slot;
-    slot_t *sl = &c->slot_pool[si];
-    uint8_t value = member_value(c, mb);
-    int bad = mb->join_corrupt || sl->hits > mb->join_hits;
-    uint64_t start = sl->start;
-    int32_t src = mb->src;
-    mb->slot = -1;
-    mb->next_free = c->mem_free;
-    c->mem_free = mi;
-    if (--sl->alive == 0) { /* every member ends now: the slot leaves the air */
-        receiver_t *r = &c->rcv[ri];
-        uint32_t j = slot_lower(c, r, sl->start, sl->end);
-        while (j < r->n && r->slots[j] != si)
-            j++;
-        if (j < r->n) {
-            memmove(r->slots + j, r->slots + j + 1, (size_t)(r->n - j - 1) * sizeof *r->slots);
-            r->n--;
-        }
-        sl->n_members = 0;
-        sl->next_free = c->slot_free;
-        c->slot_free = si;
-    }
     receiver_t *r = &c->rcv[ri];
+    mb->done = 1; /* it stays in the air while a later byte may still overlap it */
     if (r->gone)
         return;
+    /* every carrier that meets it is on the line by now: it began before this stop bit */
+    uint8_t value = uart_value(r, mb->start, mb->end - mb->start, mb->sent);
+    int bad = mb->corrupt_in || overlapped(c, r, mb->src, mb->start, mb->end);
+    uint64_t start = mb->start;
+    int32_t src = mb->src;
     /* two garbled bytes overlapping on one line are one byte: the first to complete carries it */
     if (bad && r->has_busy && start < r->line_busy)
         return;
@@ -738,7 +800,7 @@ core_t *core_new(const char *control_lib, const char *comm_lib, const uint8_t *c
     if (!c)
         return NULL;
     c->stepping = -1;
-    c->slot_free = c->mem_free = -1;
+    c->mem_free = -1;
     c->prog[0].fd = c->prog[1].fd = -1;
     if (load(c, 0, control_lib, control_power_on) || load(c, 1, comm_lib, comm_power_on))
         return c; /* core_error says why */
@@ -876,17 +938,17 @@ void core_free(core_t *c)
 {
     if (!c)
         return;
-    for (uint32_t i = 0; i < c->slot_used; i++)
-        free(c->slot_pool[i].members);
     for (uint32_t i = 0; i < c->n_receivers; i++) {
-        free(c->rcv[i].slots);
+        free(c->rcv[i].air);
+        free(c->rcv[i].low);
+        free(c->rcv[i].runs);
         free(c->rcv[i].q_alive);
         free(c->rcv[i].q_next);
     }
     free(c->tpl_pat);
     free(c->tpl_len);
     free(c->first);
-    free(c->slot_pool);
+    free(c->burst_runs);
     free(c->mem_pool);
     free(c->rcv);
     free(c->src_mark);

@@ -1,7 +1,7 @@
 """Planners behind one interface, and their registry.
 
 ``get(name).plan(problem_or_scenario) -> Plan``. Names: ``thesis-serial``,
-``thesis-parallel``, ``exact``, ``complete``. ``script:<file>`` planners are not
+``thesis-parallel``, ``exact``, ``complete``, ``walter``. ``script:<file>`` planners are not
 planners of this kind: they drive a fleet frame by frame (:mod:`planner_svc.script`,
 run by ``hexbench run``), so :func:`get` refuses them with that explanation.
 """
@@ -146,6 +146,11 @@ def _complete(plan: Plan) -> None:
     plan_complete(plan)
 
 
+def _walter(plan: Plan) -> None:
+    from .walter.plan import plan_walter
+    plan_walter(plan)
+
+
 PLANNERS: dict[str, FunctionPlanner] = {
     p.name: p for p in (
         FunctionPlanner("thesis-serial", "thesis five-layer planner, one move per time step "
@@ -160,15 +165,16 @@ PLANNERS: dict[str, FunctionPlanner] = {
                         "cases; large stuck cases are reported, not claimed unreachable; detours "
                         "dropped from the plan",
                         _complete),
+        FunctionPlanner("walter", "Walter, Tsai & Amato: I a straight chain; the admissible "
+                        "substrate path of lowest cost that bisects G, then lockstep rounds in "
+                        "which every module moves itself (the round model's moves)", _walter),
     )
 }
 
-#: The distributed planner (Walter, Tsai & Amato): the PC checks the goal and beats the rounds,
-#: the modules decide their moves (planner_svc.planners.walter, planner_svc.rounds); it makes no
-#: central plan, so it is not in PLANNERS.
+#: ``hexbench run --planner walter`` does not execute this planner's plan move by move: the PC
+#: checks the goal and beats the rounds and the modules decide their moves
+#: (``PlannerService._run_walter``, planner_svc.rounds); ``hexbench plan`` shows its plan.
 WALTER = "walter"
-WALTER_DESCRIPTION = ("Walter, Tsai & Amato: the modules reconfigure themselves from a straight "
-                      "chain in lockstep rounds the PC beats (hexbench run <scenario> --planner walter)")
 
 #: Prefix of the script planners (:mod:`planner_svc.script`).
 SCRIPT_PREFIX = "script:"

@@ -1,7 +1,8 @@
 """hexbench installs like a Python package: ``pip install <checkout>`` (not editable, as pipx or
 a CI image installs it) builds the firmware's host libraries into the wheel, so an installed
-hexbench with no checkout beside it runs ``--program firmware`` and gives the golden frames;
-one installed without them says what is missing in one line."""
+hexbench with no checkout beside it runs the firmware on the fleet core by default and gives the
+golden frames; one installed without them says what is missing in one line (and by default runs
+the Python programs, saying why)."""
 
 from __future__ import annotations
 
@@ -50,8 +51,9 @@ def test_an_installed_hexbench_runs_the_firmware_and_gives_the_golden_frames(ins
     module, lib = where.stdout.split()
     assert module.startswith(str(tmp / "site")) and lib.startswith(str(tmp / "site" / "bus" / "_firmware"))
     r = _run(tmp, env, "-m", "hexbench", "run", "thesis-12", "--planner", "complete", "--clock", "virtual",
-             "--program", "firmware", "--record", "x.mcap")
+             "--record", "x.mcap")  # no --program: the default, the firmware on the fleet core
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    assert "program: the Python programs" not in r.stdout, r.stdout[-2000:]
     assert frames_digest(tmp / "x.mcap") == GOLDEN_THESIS_12_FRAMES
 
 
@@ -67,3 +69,8 @@ def test_an_install_without_the_libraries_says_what_is_missing(installed):
     assert r.returncode != 0
     assert "installed without its firmware's host libraries" in r.stdout + r.stderr, r.stdout + r.stderr
     assert "Traceback" not in r.stderr
+    # the default program takes the Python path there, saying why
+    r = _run(tmp, env, "-m", "hexbench", "run", "pair", "--planner", "complete", "--clock", "virtual")
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    assert "program: the Python programs, not the C firmware on the fleet core: " in r.stdout
+    assert "installed without its firmware's host libraries" in r.stdout

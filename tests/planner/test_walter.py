@@ -212,6 +212,21 @@ def test_generated_goals_reach_the_goal_without_collision(n, cost_class):
         occ = (occ - {mv.from_cell for mv in r.moves}) | {mv.to_cell for mv in r.moves}
 
 
+@pytest.mark.parametrize("cost_class", ["0", "1", ">1"])
+def test_sixty_modules_every_cost_class(cost_class):
+    # The paper's claims at the top of the range: reached, no collision, within the bound, with
+    # its own delays and ours (HexBot-world legality at this size is not asked: see docs).
+    gen = generate(60, cost_class, seed=1, world_safe=False)
+    c = gen.choice
+    assert len(gen.goal) == 60 and c.candidate.cost_class == cost_class
+    for rules in DELAYS:
+        model = RoundModel(gen.goal, c.chain, c.path, c.orientation, rules=rules)
+        rep = model.report()
+        assert rep.reached and not rep.collisions, (rules, rep.collisions[:3], rep.stuck)
+        replay(model)
+        assert rep.rounds <= round_bound(model)
+
+
 def test_positions_are_learned_by_counting_passers():
     gen = generate(12, "1", seed=2)
     c = gen.choice
@@ -220,3 +235,77 @@ def test_positions_are_learned_by_counting_passers():
     final = model.rounds[-1].states
     assert all(final[i].position == i for i in range(model.n - 1))
     assert not any("counted" in x for x in model.collisions)
+
+
+# --- the scenarios of the paper's figures, the planner and the CLI -------------------------------
+def test_scenario_planner_key_and_typo():
+    from bus.scenario import PLANNERS, ScenarioError, load, loads
+    from planner_svc import planners
+    assert set(PLANNERS) == set(planners.names())
+    assert load("walter-fig8").planner == "walter"
+    with pytest.raises(ScenarioError, match=r"line 1, key 'planner': expected a planner: .*"
+                                            r"\(did you mean 'walter'\?\), got 'waltr'"):
+        loads('planner = "waltr"\ninitial = [[0, 0], [1, 0]]\n')
+
+
+def test_figure8_scenario_follows_the_papers_selection_rule():
+    # The cost-1 path A-B-C-E-G leaves 0 cells north and 2 south: not within one module of
+    # bisecting G, so the paper goes on to the most even path, A-B-D-E-G (1 / 1), cost 3.
+    from bus.scenario import load
+    sc = load("walter-fig8")
+    c = choose(sc.goal, [m.cell for m in sc.modules], rules="paper")
+    assert c.path == (A, B, D, E, G) and c.cost == 3 and (c.candidate.north, c.candidate.south) == (1, 1)
+    assert c.reached and not c.collisions
+
+
+@pytest.mark.parametrize("name", ["walter-fig3", "walter-fig5a", "walter-fig8", "walter-fig9"])
+def test_figure_scenarios_plan_legal_moves_to_the_goal(name):
+    from bus.scenario import load
+    from planner_svc import planners
+    from planner_svc.planners.plan import validate
+    plan = planners.get("walter").plan(load(name))
+    assert plan.ok, plan.reason
+    validate(plan)  # every round's moves, all at once, through the one move rule
+    assert any(n.startswith("rounds predicted: ") for n in plan.notes)
+
+
+def test_figure5b_is_refused_before_anything_moves():
+    from bus.scenario import load
+    from planner_svc import planners
+    plan = planners.get("walter").plan(load("walter-fig5b"))
+    assert not plan.ok and not plan.steps
+    assert plan.reason.startswith("inadmissible goal: orientation 0: column 2 is not one "
+                                  "contiguous north-south chain (gap at (1,-1))")
+
+
+def test_figure9_contact_patterns():
+    # Figure 9: a module that is not moving is trapped (the hardware holds it: contacts not
+    # one run, or five or more), free (Figure 10 lets it go) or other (it could move, but the
+    # algorithm holds it: stopped in its goal cell, or the module beyond it in I still there).
+    from bus.scenario import load
+    from planner_svc.planners.walter.rounds import contact_pattern
+    sc = load("walter-fig9")
+    c = choose(sc.goal, [m.cell for m in sc.modules])
+    model = c.model()
+    seen = set()
+    for r in model.run():
+        occ = {st.cell for st in r.states.values()}
+        for i, st in r.states.items():
+            if i < model.n - 1 and (st.done or not st.free):
+                contacts = [st.cell.neighbour(s) in occ for s in range(1, 7)]
+                held = st.done or (i > 0 and model.chain[i - 1] in occ)
+                seen.add(contact_pattern(contacts, held))
+    assert seen == {"trapped", "free", "other"}
+
+
+def test_hexbench_plan_walter_prints_path_cost_rounds_and_draws(tmp_path, capsys):
+    from hexbench.cli import main
+    png = tmp_path / "fig8.png"
+    assert main(["plan", "walter-fig8", "--png", str(png)]) == 0
+    out = capsys.readouterr().out
+    assert "note: substrate path: (0,0) (1,0) (2,-1) (3,-1) (4,-2)" in out
+    assert "note: substrate path cost: 3" in out and "note: rounds predicted: 28" in out
+    assert png.stat().st_size > 10_000
+    assert main(["plan", "walter-fig5b", "--planner", "walter"]) == 1
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith("walter on walter-fig5b: FAILED: inadmissible goal: orientation 0")

@@ -48,7 +48,11 @@ def test_another_seed_gives_another_run(tmp_path, pair_recording, record_pair_ru
 #: time (issue 50 item 13: a wrong magnet or multiplexer byte in a record changed no digest).
 #: Then re-made for the bring-up in O(n + d) frames: one Localize step per ring and one
 #: read-back instead of polling every module after every step (155 fewer frames).
-GOLDEN_THESIS_12 = (10663, 1967, "e2c227b4b32ef585fac83f2c0e9023f77431eafb178e0d6abfacb2977e60ab91")
+#: Then re-made when a garbled byte became what the receiver's USART samples of the AND of
+#: the carriers at its bit times (issue 51 item 4, docs/physics.md §8), not the AND of whole
+#: bytes: the same frames, other garbled values, 19 fewer samples (``ir/rx`` garble
+#: corrections go out only for bytes whose sampled value or garbled state changes).
+GOLDEN_THESIS_12 = (10644, 1967, "387779a6f5fe2736e224fdf6b40cf23adeda11564bbce0be29799cc0c4b5e7c3")
 #: The same run on the fleet core (module_sim.core, the firmware program's default): the same
 #: frames (GOLDEN_THESIS_12_FRAMES), no ``ir/tx``/``ir/rx`` samples for light inside the core
 #: (the PC's receiver gets its bytes on ``ir/rx/pc`` one at a time), and the records of LED and
@@ -62,7 +66,9 @@ GOLDEN_THESIS_12 = (10663, 1967, "e2c227b4b32ef585fac83f2c0e9023f77431eafb178e0d
 #: while the clock's inbox holds samples of its instant runs that instant only (issue 51 item
 #: 6: light in the inbox entered the core up to 100 ms late): the same samples at the same log
 #: times, 46 of them written in another order (windows end at other instants).
-GOLDEN_THESIS_12_CORE = (7668, 1967, "7062ece9e9beda83bcb2f98b79e4b5071bc340a7d29e4f0a8721a2dfb51245e8")
+#: Then re-made for the USART's sampling of the line (as above): the same frames and samples,
+#: other garbled values in the PC's bytes and the collision events.
+GOLDEN_THESIS_12_CORE = (7668, 1967, "eff4b13369d368a995bdfe4cefe09df7770ccaa95f077c85f81797242471cd4a")
 
 
 #: what a summary says of the wall clock (planner/progress when done): not part of the run

@@ -1,7 +1,8 @@
 """Two bytes that collide at the PC's receiver, sent from two shards (issue 50, item 10).
 
 Byte X (0x0F) leaves m1's centre transceiver at 25 ms, byte Y (0xF0) m2's at 31 ms: they
-overlap at the PC, so one process decodes X as their AND, 0x00. Over shards ``s0`` sends X,
+overlap at the PC, so one process decodes X garbled, 0x01 (its bits 1-3 are sampled while
+Y's carrier holds the line low). Over shards ``s0`` sends X,
 ``s1`` sends Y, and ``pc`` runs the PC's part of the world (the medium at its receiver) and
 an :class:`bus.ir.IrReceiver`; each is a process (``python -m tests.support.ir_shards NAME``)
 on a lockstep clock with the run's windows and lags (:mod:`module_sim.shards`), or the given

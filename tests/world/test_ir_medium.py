@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from bus import codec
 from bus.functions import FunctionCode as F
@@ -330,16 +331,75 @@ def _arrived(order: list[tuple[str, bytes, list[int]]]) -> dict[tuple[str, int],
     return got
 
 
-def test_a_garbled_byte_is_the_and_of_what_overlaps_it_whatever_the_order_light_arrives_in():
+def _line_level(t: int, bursts: list[tuple[str, bytes, list[int]]]) -> int:
+    """The receiver's line at ``t``, from the waveforms themselves: low (0) while any carrier
+    sends a start bit or a 0 data bit (10 bit times a byte, LSB first, then the stop bit)."""
+    for _src, data, starts in bursts:
+        for v, s in zip(data, starts):
+            if s <= t < s + TB:
+                j = (t - s) * 10 // TB  # the bit time t falls in (0: start bit)
+                if j == 0 or (1 <= j <= 8 and not v >> (j - 1) & 1):
+                    return 0
+    return 1
+
+
+def _uart_reads(start: int, bursts: list[tuple[str, bytes, list[int]]]) -> int:
+    """What an ATmega162 USART locked on the start bit at ``start`` reads: each data bit the
+    majority of samples 8, 9 and 10 of its 16 (7/16, 8/16 and 9/16 of the bit after its edge)."""
+    value = 0
+    for k in range(8):
+        highs = sum(_line_level(start + (16 * (k + 1) + s) * TB // 160, bursts) for s in (7, 8, 9))
+        value |= (highs >= 2) << k
+    return value
+
+
+def _oracle(bursts: list[tuple[str, bytes, list[int]]]) -> dict[tuple[str, int], int]:
+    return {(src, i): _uart_reads(s, bursts) for src, data, starts in bursts for i, s in enumerate(starts)}
+
+
+def test_a_garbled_byte_is_what_the_uart_samples_of_the_and_of_the_carriers_whatever_the_order():
     """Shards hand light from another process over a lockstep window late, after later light
-    of their own: a byte's value must not depend on that order. y's first byte meets x and z;
-    z meets both of y's bytes but not x (x ended before z began), so z keeps the bits x
-    would clear: it is not garbled by what x did to y."""
+    of their own: a byte's value must not depend on that order. y's first byte meets x and z,
+    z meets both of y's bytes but not x: each byte is what the USART samples at its own bit
+    times on the line every carrier pulls low, and z keeps the bits x would clear."""
     from itertools import permutations
 
     x = ("m1.comm", bytes([0xF0]), [0])
     y = ("m2.comm", bytes([0xFF, 0xFF]), [TB // 2, TB // 2 + TB])
     z = ("m3.comm", bytes([0x0F]), [TB + TB // 5])
-    want = {("m1.comm", 0): 0xF0, ("m2.comm", 0): 0x00, ("m2.comm", 1): 0x0F, ("m3.comm", 0): 0x0F}
+    want = _oracle([x, y, z])
+    # by hand: x's 0 bits sit under y's bits 0-3 samples; y's 0xFF keeps x; z's start bit
+    # lands under y0's bit 6; y1 starts under z's data, so z's high nibble of 0 clears y1's 0-3
+    assert want[("m1.comm", 0)] == 0xE0 and want[("m2.comm", 0)] != 0xFF
     for order in permutations([x, y, z]):
         assert _arrived(list(order)) == want, [o[0] for o in order]
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(st.tuples(st.binary(min_size=1, max_size=4), st.integers(0, 3 * TB)),
+                min_size=1, max_size=5), st.randoms(use_true_random=False))
+def test_any_pile_up_in_any_order_arrives_as_the_uart_samples_it(bursts, rnd):
+    """Drawn bursts from distinct transmitters (each one UART: its bytes back to back), learnt
+    in a drawn order: every byte ends as the oracle's waveform sampling says."""
+    drawn = [(f"m{n}.comm", data, [t0 + k * TB for k in range(len(data))])
+             for n, (data, t0) in enumerate(bursts)]
+    want = _oracle(drawn)
+    order = list(drawn)
+    rnd.shuffle(order)
+    assert _arrived(order) == want
+
+
+def test_the_air_forgets_light_that_has_ended():
+    """A transmitter that never collides (a module's receiver hears one neighbour) for a long
+    run: what the air keeps stays that of the bursts in flight, not of every burst so far."""
+    from module_sim.air import Air
+
+    air = Air()
+    for n in range(2000):
+        t = n * 3 * TB
+        starts = [t, t + TB]
+        values, corrupt, fixes, sources = air.collide("m1.comm", n, b"\x55\xaa", starts, TB, t)
+        assert values == [0x55, 0xAA] and not any(corrupt) and not fixes and not sources
+        air.add("m1.comm", n, b"\x55\xaa", values, corrupt, starts, TB)
+    assert len(air.runs["m1.comm"][0]) <= 2 and len(air.keys) <= 4 and len(air.members) <= 4
+    assert len(air.pending) <= 2 * 24 and len(air.low_a) <= 2 * 9

@@ -111,12 +111,13 @@ def _ir_shards(tmp_path, *extra: str) -> dict:
 
 def test_a_collision_across_shards_is_decoded_as_in_one_process(tmp_path):
     """X (0x0F) from shard 0 at 25 ms and Y (0xF0) from shard 1 at 31 ms overlap at the PC:
-    one process decodes X as 0x00. The planner's process runs a window behind the shards, so
+    one process decodes X as 0x01 (Y's carrier starts 1.8 bit times into X: X's bit 0 is
+    sampled before it, bits 1-3 under Y's start bit and 0 bits, docs/physics.md §8). The planner's process runs a window behind the shards, so
     Y's correction of X is there before X's stop bit: the same byte, no conflict."""
     from tests.support.ir_shards import one_process
 
     reference = one_process(f"irxyref{os.getpid()}")
-    assert reference == [[58_333_333, 0x00, True]]
+    assert reference == [[58_333_333, 0x01, True]]
     got = _ir_shards(tmp_path)
     assert got["got"] == reference and got["conflicts"] == 0
 

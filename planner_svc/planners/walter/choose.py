@@ -265,7 +265,7 @@ def choose(goal: Iterable[Cell], chain: Sequence[Cell] | None = None,
             choice.collisions, choice.world_refusals = rep.collisions, rep.world_refusals
         if best is None:
             best = choice
-        if choice.reached and not choice.collisions and not choice.world_refusals:
+        if choice.reached and not choice.collisions and (rules == "paper" or not choice.world_refusals):
             return choice
     if best is None:
         raise Inadmissible("inadmissible goal: no straight chain I fits beside G at the start "

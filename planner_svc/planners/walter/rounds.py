@@ -252,6 +252,15 @@ def flips(contacts: Sequence[bool]) -> int:
     return sum(contacts[i] != contacts[(i + 1) % 6] for i in range(6))
 
 
+def contact_pattern(contacts: Sequence[bool], held: bool) -> str:
+    """Figure 9's classes: ``trapped`` (its contacts are not one run, or five or more: the
+    hardware cannot move it), ``other`` (it could move, but the algorithm holds it: the cell
+    of I beyond it is still occupied, or it stopped in its goal cell) or ``free``."""
+    if flips(contacts) != 2 or sum(contacts) >= 5:
+        return "trapped"
+    return "other" if held else "free"
+
+
 def step(cell: Cell, direction: Direction, pivot: Cell, occupied: set[Cell]) -> tuple[Cell, Cell] | None:
     """One step around the structure: ``(substrate, target)``, or None if it cannot turn.
 
@@ -372,7 +381,7 @@ class RoundModel:
         if not m.free:
             contacts = _sides_occupied(m.cell, occupied)
             first = m.position_true == 0
-            if first or (m.beyond not in occupied and flips(contacts) == 2 and sum(contacts) < 5):
+            if first or contact_pattern(contacts, m.beyond in occupied) == "free":
                 m.free = True
                 m.position = 0 if first else m.cw + m.ccw
                 if m.position != m.position_true:
