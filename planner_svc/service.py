@@ -253,8 +253,13 @@ class PlannerService:
                 raise MoveFailed(f"round {r}: {e.module} {e.kind} {e.reason}: "
                                  f"{e.data.get('detail', '')}", None, None, e.reason)
             if moved != expected.get(r, []):
-                raise MoveFailed(f"round {r}: the fleet moved {moved} (position, direction, cell), "
-                                 f"the round model {expected.get(r, [])}", None, None, "diverged")
+                name = {p: f"m{i}" for i, p in ident.items()}
+                said = [f"{name.get(p, '?')} did not move {d} to {c}" for p, d, c in expected.get(r, [])
+                        if (p, d, c) not in moved]
+                said += [f"{name.get(p, '?')} moved {d} to {c}" for p, d, c in moved
+                         if (p, d, c) not in expected.get(r, [])]
+                raise MoveFailed(f"round {r}: {'; '.join(said)}, unlike the round model", None, None,
+                                 "diverged")
 
         try:
             rounds = driver.run(len(model.rounds) + ROUND_LIMIT_SLACK, progress=each_round)

@@ -254,3 +254,16 @@ def test_an_inadmissible_goal_is_refused_before_anything_moves(tmp_path):
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert r.stderr.strip().splitlines() == [
         "hexbench run: error: planner walter: I is not a straight chain (section 4 assumes one)"]
+
+
+def test_a_fault_on_a_movers_magnet_stops_the_fleet_naming_module_and_round():
+    """m1 (the free end) cannot make its drive pair (S2 never energises): no move, no
+    collision; the PC stops beating after the round and the run exits 1 naming both."""
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "hexbench", "run", "walter-4", "--planner", "walter",
+                        "--fault", "m1.S2:off"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 1, r.stdout[-2000:] + r.stderr[-2000:]
+    assert "FAILED: round 1: m1 did not move CW to (-3, 1), unlike the round model" in r.stdout
+    assert "collision" not in r.stdout
