@@ -252,7 +252,9 @@ def _options(args: argparse.Namespace, with_fleet: bool) -> RunOptions:
     from planner_svc import planners
 
     scenario = _scenario(args)
-    if not args.planner.startswith(planners.SCRIPT_PREFIX):
+    if args.planner == planners.WALTER:
+        pass  # checked with the scenario by _early_plan
+    elif not args.planner.startswith(planners.SCRIPT_PREFIX):
         try:
             planners.get(args.planner)
         except planners.UnknownPlanner as exc:
@@ -300,6 +302,13 @@ def _early_plan(scenario: Scenario, planner: str) -> Plan | None:
     from planner_svc import planners
     from planner_svc.planners.plan import PlanError, check_reach
 
+    if planner == planners.WALTER:
+        from planner_svc.planners.walter import Inadmissible, choose
+        try:  # an inadmissible goal is refused before anything moves
+            choose(scenario.goal, scenario.initial, model=False)
+        except Inadmissible as exc:
+            raise UsageError(f"planner walter: {exc}") from None
+        return None
     if planner.startswith(planners.SCRIPT_PREFIX) or scenario.profile == "thesis-2009":
         return None
     try:

@@ -62,7 +62,7 @@ class Air:
     """
 
     __slots__ = ("keys", "members", "clean", "low_a", "low_b", "pending", "runs", "longest",
-                 "_uid", "_stash")
+                 "_uid", "_stash", "_now")
 
     def __init__(self) -> None:
         self.keys: list[tuple[int, int, int]] = []  # (start, end, uid) of the bytes in flight
@@ -76,6 +76,7 @@ class Air:
         self.longest = 0
         self._uid = 0
         self._stash: list[list[int]] = []  # collide's low samples per byte and bit, for add
+        self._now = 0  # collide's now: what ended before it is forgotten
 
     # -- the line --------------------------------------------------------------------------------
     def _is_low(self, t: int) -> bool:
@@ -134,6 +135,7 @@ class Air:
         are garbled, the corrections to earlier bursts ``[src, burst, index, value]`` and the
         sources it collided with. :meth:`add` then puts it in the air."""
         self._forget(now)
+        self._now = now
         values = list(data)
         corrupt = [False] * len(values)
         stash: list[list[int]] = []
@@ -208,6 +210,9 @@ class Air:
                         if not is_low(t):
                             insort(self.pending, (t, uid, bit))
         ra, rb = self.runs.setdefault(src, ([], []))
+        k = bisect_right(rb, self._now)  # its own light that has ended (a run with no collision
+        if k:                            # is forgotten here, not by collide)
+            del ra[:k], rb[:k]
         for a, b in _runs(starts, byte_ns):
             if rb and rb[-1] >= a and ra[-1] <= a:  # touches its last span: extend it
                 rb[-1] = max(rb[-1], b)

@@ -29,6 +29,9 @@ from .planners.plan import Plan, PlanError, Problem, check_reach, validate
 from .planners.rules import Move
 from .script import ScriptError, run_script
 
+#: Rounds a Walter run beats past the round model's last before it gives up.
+ROUND_LIMIT_SLACK = 5
+
 
 @dataclass
 class RunResult:
@@ -153,6 +156,9 @@ class PlannerService:
                 at_goal = truth == set(self.scenario.goal)
                 result.reason += "; the world is " + ("at the goal" if at_goal else "not at the goal")
             return
+        if self.planner_name == planners.WALTER:
+            self._run_walter(result, since_ns)
+            return
         planner = planners.get(self.planner_name)
         self.view = self.bringup.run(since_ns)
         if self.scenario.profile == "thesis-2009":
@@ -196,3 +202,68 @@ class PlannerService:
                                  f"{sorted(map(str, truth ^ set(self.scenario.goal)))}")
         self._state(result.steps + 1, [])
         result.ok, result.reason = True, "goal reached"
+
+    # -- the distributed planner -----------------------------------------------------------------
+    def _run_walter(self, result: RunResult, since_ns: int) -> None:
+        """Walter, Tsai & Amato (docs/protocol.md, docs/planner.md): bring-up, the goal checked
+        and the substrate path chosen, the problem uploaded, one beat a round until every
+        module reports its goal reached (or the round limit), then the world's verdict. The
+        fleet is held to the round model round by round."""
+        from .planners.walter import Inadmissible, choose
+        from .rounds import RoundDriver, problem_of
+
+        view = self.bringup.run(since_ns)
+        if self.scenario.profile == "thesis-2009":
+            raise BringUpError("thesis-2009 modules have no Walter rounds: use the v2 profile")
+        initial = sorted(view.cells())
+        try:
+            choice = choose(self.scenario.goal, initial)
+        except Inadmissible as exc:
+            raise PlanError(f"walter: {exc}") from None
+        if choice.chain[-1] != self.scenario.fixed:
+            raise PlanError(f"walter: the fixed module is at {self.scenario.fixed}, not where I "
+                            f"meets G ({choice.chain[-1]}): the anchor must be the reference")
+        model = choice.model()
+        model.run()
+        expected = {r.number: sorted((mv.module, mv.direction.value, (mv.to_cell.x, mv.to_cell.y))
+                                     for mv in r.moves) for r in model.rounds}
+        self.say(f"walter: {choice.summary()}")
+        self._planned = sum(len(m) for m in expected.values())
+        result.planned_moves = self._planned
+        position = {c: i for i, c in enumerate(choice.chain)}
+        ident = {m.id: position[m.cell] for m in view.modules.values() if m.cell in position}
+        driver = RoundDriver(self.pc, self.scenario, say=self.say)
+        driver.upload(problem_of(choice, model))
+        seen = len(self.truth.events)
+        self._moves_began = time.monotonic()
+
+        def each_round(r: int, heard: int) -> None:
+            nonlocal seen
+            events = self.truth.events[seen:]
+            seen = len(self.truth.events)
+            bad = [e for e in events if e.kind in ("move-refused", "fault")]
+            moved = sorted((ident.get(int(e.module[1:]), -1), e.data["direction"], tuple(e.data["to"]))
+                           for e in events if e.kind == "move-completed")
+            result.moves += len(moved)
+            result.steps = r
+            self._progress(r, result.moves, f"round {r}: {len(moved)} moved, "
+                           + ("still on their way" if heard else "every module in its goal"))
+            if bad:
+                e = bad[0]
+                raise MoveFailed(f"round {r}: {e.module} {e.kind} {e.reason}: "
+                                 f"{e.data.get('detail', '')}", None, None, e.reason)
+            if moved != expected.get(r, []):
+                raise MoveFailed(f"round {r}: the fleet moved {moved} (position, direction, cell), "
+                                 f"the round model {expected.get(r, [])}", None, None, "diverged")
+
+        try:
+            rounds = driver.run(len(model.rounds) + ROUND_LIMIT_SLACK, progress=each_round)
+        finally:
+            driver.stop()
+        if not rounds.done:
+            raise MoveFailed(f"walter: modules still on their way after {rounds.rounds} rounds")
+        truth = self.truth.cells()
+        if self.truth.present and truth != set(self.scenario.goal):
+            raise MoveFailed(f"the world does not match the goal: "
+                             f"{sorted(map(str, truth ^ set(self.scenario.goal)))}")
+        result.ok, result.reason = True, f"goal reached in {rounds.rounds} rounds"

@@ -171,6 +171,11 @@ PLANNERS: dict[str, FunctionPlanner] = {
     )
 }
 
+#: ``hexbench run --planner walter`` does not execute this planner's plan move by move: the PC
+#: checks the goal and beats the rounds and the modules decide their moves
+#: (``PlannerService._run_walter``, planner_svc.rounds); ``hexbench plan`` shows its plan.
+WALTER = "walter"
+
 #: Prefix of the script planners (:mod:`planner_svc.script`).
 SCRIPT_PREFIX = "script:"
 SCRIPT_DESCRIPTION = ("one PC action per line (send, select, wait, expect) against a fleet: "

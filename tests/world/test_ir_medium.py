@@ -387,3 +387,19 @@ def test_any_pile_up_in_any_order_arrives_as_the_uart_samples_it(bursts, rnd):
     order = list(drawn)
     rnd.shuffle(order)
     assert _arrived(order) == want
+
+
+def test_the_air_forgets_light_that_has_ended():
+    """A transmitter that never collides (a module's receiver hears one neighbour) for a long
+    run: what the air keeps stays that of the bursts in flight, not of every burst so far."""
+    from module_sim.air import Air
+
+    air = Air()
+    for n in range(2000):
+        t = n * 3 * TB
+        starts = [t, t + TB]
+        values, corrupt, fixes, sources = air.collide("m1.comm", n, b"\x55\xaa", starts, TB, t)
+        assert values == [0x55, 0xAA] and not any(corrupt) and not fixes and not sources
+        air.add("m1.comm", n, b"\x55\xaa", values, corrupt, starts, TB)
+    assert len(air.runs["m1.comm"][0]) <= 2 and len(air.keys) <= 4 and len(air.members) <= 4
+    assert len(air.pending) <= 2 * 24 and len(air.low_a) <= 2 * 9
