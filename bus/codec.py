@@ -48,7 +48,9 @@ TST_TAG = b"TST"
 VER_TAG = b"VER"
 #: What our programs report to ``Version``: the protocol release (docs/protocol.md) and the
 #: profile byte (2 = v2; a thesis-2009 module does not know the code and answers 'N').
-FIRMWARE_VERSION = (2, 1)
+#: 2.2: MSG1's tens byte up to 12 (v2 carries -127..127), id 0 never an address, a frame's bytes
+#: within FRAME_BYTE_TICKS of each other, Walter's rounds (WalterSetup/Goal/Beat, STwo, WalterLog).
+FIRMWARE_VERSION = (2, 2)
 PROFILE_V2 = 2
 #: What an image prints on its UART1, about once a second, when the EEPROM's board-kind record
 #: (bus.chip) does not name the board it was built for: it drives no pin then.

@@ -273,7 +273,7 @@
 #define TXT_TST "TST"
 #define TXT_VER "VER"
 #define FIRMWARE_VERSION_MAJOR 2
-#define FIRMWARE_VERSION_MINOR 1
+#define FIRMWARE_VERSION_MINOR 2
 #define PROFILE_V2_BYTE 2
 #define TXT_SIDE "Side: "
 #define TXT_YREF "Yref: "

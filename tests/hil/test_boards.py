@@ -14,13 +14,15 @@ from pathlib import Path
 import pytest
 from serial.tools.list_ports_common import ListPortInfo
 
-from bus.codec import Frame, Kind, Link, encode_ack, encode_command, encode_position, encode_version, noise, parse
+from bus.codec import FIRMWARE_VERSION, Frame, Kind, Link, encode_ack, encode_command, encode_position, encode_version, noise, parse
 from bus.functions import FunctionCode as F
 from hexbench import boards
 from hexbench.boards import Answer, Port
 from hexbench.cli import main
 from hexbench.standin import StandIn
 from hil.pty import Pty
+
+VERSION = "%d.%d" % FIRMWARE_VERSION
 
 ROOT = Path(__file__).resolve().parents[2]
 BOOT_TIMEOUT_S = 40.0
@@ -72,13 +74,13 @@ def test_boards_names_each_board_on_its_port(desk, monkeypatch, capsys):
     assert (r["usb_serial"], r["description"]) == ("HX0007", "FT232R USB UART")
     assert r["by_id"] == str(by_id / "usb-FTDI_FT232R_USB_UART_HX0007-if00-port0")
     assert (r["kind"], r["ids"], r["profile"], r["firmware"], r["localized"], r["role"]) == \
-        ("v2", [7], "v2", "2.1", False, "mobile")
+        ("v2", [7], "v2", VERSION, False, "mobile")
     assert r["next"] == f"hexbench run <scenario> --real 7={r['by_id']}"  # the stable name
     assert not r["collisions"]
 
     r = rows[m126.path]
-    assert (r["kind"], r["ids"], r["firmware"], r["localized"]) == ("v2", [126], "2.1", False)
-    assert r["what"] == "module 126: v2, firmware 2.1, not localized, mobile"
+    assert (r["kind"], r["ids"], r["firmware"], r["localized"]) == ("v2", [126], VERSION, False)
+    assert r["what"] == f"module 126: v2, firmware {VERSION}, not localized, mobile"
 
     r = rows[thesis.path]
     assert (r["kind"], r["ids"], r["profile"], r["firmware"]) == ("thesis-2009", [], "thesis-2009", None)
@@ -104,7 +106,7 @@ def test_boards_table_and_exit_statuses(desk):
     lines = out.stdout.splitlines()
     assert lines[0].split() == ["PORT", "USB", "SERIAL", "ANSWER", "NEXT", "STEP"]
     row = {line.split()[0]: line for line in lines[1:]}
-    assert "module 7: v2, firmware 2.1, not localized, mobile" in row[m7.path]
+    assert f"module 7: v2, firmware {VERSION}, not localized, mobile" in row[m7.path]
     assert f"hexbench run <scenario> --real 7={m7.path}" in row[m7.path]
     assert "thesis-2009 (or a module without v2)" in row[thesis.path]
     assert "no answer" in row[empty.path]

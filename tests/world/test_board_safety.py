@@ -12,6 +12,8 @@ from bus.framer import Framer
 from bus.timing import MAGNET_ON_LIMIT_TICKS, NS_PER_S, SELFTEST_PULSE_TICKS, SOLENOID_ON_LIMIT_TICKS, TICK_NS
 from module_sim.script import run_script
 
+VERSION = "%d.%d" % codec.FIRMWARE_VERSION
+
 PROGRAMS = ["model", "firmware"]
 BOOTED_NS = 10 * NS_PER_S  # both boards listen by then
 
@@ -108,6 +110,6 @@ def test_version_names_the_v2_firmware_and_a_thesis_module_does_not_know_it(prof
         ver = [f.view for _, f in _kinds(frames, Kind.VERSION)]
         acks = [f.view["byte"] for _, f in _kinds(frames, Kind.ACK)]
         if profile == "v2":
-            assert ver == [{"preamble": True, "role": "M", "version": "2.1", "profile": "v2"}] and acks == [63]
+            assert ver == [{"preamble": True, "role": "M", "version": VERSION, "profile": "v2"}] and acks == [63]
         else:
             assert ver == [] and acks == [ord("N")]
