@@ -7,7 +7,7 @@ import re
 
 import pytest
 
-from golden import GOLDEN_THESIS_12_FRAMES, frames_digest
+from golden import GOLDEN_THESIS_12_FRAMES, GOLDEN_WALTER_4_FRAMES, frames_digest
 from recordings.reader import iter_samples, read_frames, read_metadata, sim_origin
 
 
@@ -112,3 +112,27 @@ def test_thesis_12_gives_the_golden_frames(tmp_path, capsys, program):
     assert "program:" not in capsys.readouterr().out  # nothing to say: it runs on the core
     assert _digest(out) == (GOLDEN_THESIS_12 if program == "model" else GOLDEN_THESIS_12_CORE)
     assert frames_digest(out) == GOLDEN_THESIS_12_FRAMES
+
+
+@pytest.mark.parametrize("program", ["model", "firmware"])
+def test_walter_4_gives_the_golden_frames(tmp_path, program):
+    """Walter's distributed run (the modules decide and move themselves, side-link requests and
+    acknowledgements, one beat a round): the Python programs and the C firmware make the same
+    frames at the same sim times."""
+    from hexbench.cli import main
+
+    out = tmp_path / "w.mcap"
+    assert main(["run", "walter-4", "--planner", "walter", "--clock", "virtual", "--program", program,
+                 "--record", str(out)]) == 0
+    assert frames_digest(out) == GOLDEN_WALTER_4_FRAMES
+
+
+def test_walter_4_compare_model_agrees(tmp_path, capsys):
+    """``--compare-model`` on a Walter run: the model run is the same Walter run, frame for frame."""
+    from hexbench.cli import main
+
+    out = tmp_path / "w.mcap"
+    assert main(["run", "walter-4", "--planner", "walter", "--compare-model", "--record", str(out)]) == 0
+    said = capsys.readouterr().out
+    assert "compare: firmware and model agree on all 762 frames" in said
+    assert frames_digest(out.with_name("w-model.mcap")) == GOLDEN_WALTER_4_FRAMES

@@ -10,6 +10,12 @@ from __future__ import annotations
 #: fewer: no Report of every module before Ref and none after every Localize step).
 GOLDEN_THESIS_12_FRAMES = (1967, "4983606bbce0d61c83ee4a6f8774a577feae28fd71ae606ab184038a187bfd59")
 
+#: walter-4 by ``--planner walter`` on the virtual clock (bring-up, upload, ten rounds, 12 moves
+#: the modules decide and make themselves): the same frames with the Python programs and the C
+#: firmware. Made with the Walter run (issue 49); a change of Walter's codes, the side-link
+#: exchange, the beat or the bring-up changes it on purpose.
+GOLDEN_WALTER_4_FRAMES = (762, "3d83e202f8361ae0a7348590a4a2e27728f80ca7664a079e7818f21bd8ab9168")
+
 
 def frames_digest(path) -> tuple[int, str]:
     import hashlib

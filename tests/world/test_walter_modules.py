@@ -195,12 +195,23 @@ def _scenario_of(choice, program: str) -> str:
             f"fixed = [{anchor.x}, {anchor.y}]\ngoal = [{goal}]\n{mods}")
 
 
-@pytest.mark.parametrize("program", ["model", "firmware"])
-def test_the_fleet_moves_as_the_round_model_round_by_round(program):
-    """A cost-1 goal (a bend in the substrate path, a column north of it): which module, which
-    direction, to which cell, in which round, as the round model says; no refusal; the PC
-    stops in the round the model's last module arrives."""
-    goal = [Cell(0, 0), Cell(1, 0), Cell(2, -1), Cell(1, 1)]
+def _generated(n: int, cost_class: str, seed: int) -> list[Cell]:
+    from planner_svc.planners.walter.goals import generate
+    return sorted(generate(n, cost_class, seed).goal)
+
+
+@pytest.mark.parametrize("program,goal", [
+    ("model", [Cell(0, 0), Cell(1, 0), Cell(2, -1), Cell(1, 1)]),
+    ("firmware", [Cell(0, 0), Cell(1, 0), Cell(2, -1), Cell(1, 1)]),
+    ("firmware", _generated(12, "0", 5)),
+    ("firmware", _generated(12, "1", 6)),
+    ("firmware", _generated(12, ">1", 7)),
+], ids=["cost1-model", "cost1-firmware", "gen12-cost0", "gen12-cost1", "gen12-cost>1"])
+def test_the_fleet_moves_as_the_round_model_round_by_round(program, goal):
+    """Which module, which direction, to which cell, in which round, as the round model says;
+    no refusal; the PC stops in the round the model's last module arrives. A cost-1 goal (a
+    bend in the substrate path, a column north of it), with both programs, and generated
+    admissible goals of every path cost class."""
     choice = choose(goal)
     model = choice.model()
     model.run()
