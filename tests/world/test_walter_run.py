@@ -42,7 +42,7 @@ def test_a_figure_scenario_runs_walter_by_itself_as_the_round_model_says(name, c
     sc = load(name)
     assert sc.planner == "walter"
     code, out, _ = run(capsys, name)  # no --planner: the scenario's
-    assert "planner walter" in out
+    assert "planner walter" in out and "] round   1 moves" in out  # progress in rounds
     held_to_the_model(code, out, predicted_rounds(sc.goal, sc.initial))
 
 
@@ -66,9 +66,18 @@ def _scenario_file(tmp: Path, name: str, goal: frozenset[Cell], chain: list[Cell
     return path
 
 
-@pytest.mark.parametrize("n,cost_class", [(6, "0"), (6, "1"), (6, ">1"), (12, "1")])
-def test_a_generated_goal_is_reached_as_the_round_model_says(n, cost_class, tmp_path, capsys):
-    gen = generate(n, cost_class, seed=3)
+#: 11 modules, path cost 0, seed 1: the fleet's position-1 module goes CW in round 33, where the
+#: round model moves nobody (it goes CCW later, in its goal in round 36); the run stops there.
+#: Strict: the mark goes the day the modules and the round model agree.
+DIFFERS_IN_ROUND_33 = pytest.mark.xfail(strict=True, reason="the modules' rounds and the round "
+                                                            "model differ in round 33 (issue 49)")
+
+
+@pytest.mark.parametrize("n,cost_class,seed", [
+    (6, "0", 3), (6, "1", 3), (6, ">1", 3), (12, "1", 3), (20, ">1", 1),
+    pytest.param(11, "0", 1, marks=DIFFERS_IN_ROUND_33)])
+def test_a_generated_goal_is_reached_as_the_round_model_says(n, cost_class, seed, tmp_path, capsys):
+    gen = generate(n, cost_class, seed=seed)
     assert gen.choice.candidate.cost_class == cost_class
     path = _scenario_file(tmp_path, f"generated-{n}-{cost_class.replace('>', 'gt')}", gen.goal,
                           gen.choice.chain)
