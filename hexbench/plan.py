@@ -54,7 +54,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         scenario = load(args.scenario)
     except ScenarioError as exc:
         raise UsageError(str(exc)) from None
-    name = args.planner or scenario.planner or "thesis-serial"
+    name = args.planner or scenario.planner or planners.DEFAULT
     try:
         planner = planners.get(name)
     except planners.UnknownPlanner as exc:

@@ -39,9 +39,9 @@ if TYPE_CHECKING:
 
 def add_run_arguments(p: argparse.ArgumentParser, *, with_fleet: bool) -> None:
     p.add_argument("scenario", help="a built-in scenario name or a .toml file")
-    p.add_argument("--planner", default="thesis-serial",
-                   help="planner name ('hexbench plan --list'), or script:<file>; "
-                        "default thesis-serial")
+    p.add_argument("--planner",
+                   help="planner name ('hexbench plan --list'), or script:<file>; default: the "
+                        "scenario's planner, else thesis-serial")
     p.add_argument("--clock", choices=["virtual", "wall"], default="virtual" if with_fleet else "wall",
                    help="virtual: deterministic and as fast as the CPU allows (one process); "
                         "wall: real time, for hardware and other processes")
@@ -252,6 +252,8 @@ def _options(args: argparse.Namespace, with_fleet: bool) -> RunOptions:
     from planner_svc import planners
 
     scenario = _scenario(args)
+    # a scenario made for a planner (planner = "walter") runs with it unless told otherwise
+    args.planner = args.planner or scenario.planner or planners.DEFAULT
     if args.planner == planners.WALTER:
         pass  # checked with the scenario by _early_plan
     elif not args.planner.startswith(planners.SCRIPT_PREFIX):

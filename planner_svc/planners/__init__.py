@@ -175,6 +175,8 @@ PLANNERS: dict[str, FunctionPlanner] = {
 #: checks the goal and beats the rounds and the modules decide their moves
 #: (``PlannerService._run_walter``, planner_svc.rounds); ``hexbench plan`` shows its plan.
 WALTER = "walter"
+#: The planner of a run or a plan when neither the command nor the scenario names one.
+DEFAULT = "thesis-serial"
 
 #: Prefix of the script planners (:mod:`planner_svc.script`).
 SCRIPT_PREFIX = "script:"
