@@ -9,8 +9,8 @@ Run alone: ``pytest -s tests/benchmarks/test_walter_bench.py``. Every figure is 
   :func:`planner_svc.planners.walter.goals.generate`) and the paper's figure scenarios. Both
   runs share the bring-up (O(n + d) frames, the same frames until the plan starts), so each
   row shows the whole run and the run after bring-up (from "localized ... at T s" to the end).
-  Target: Walter's robot time at least 5x less than ``complete``'s at 40 modules, after bring-up
-  (the whole run's ratio is printed beside it).
+  Target: Walter's robot time at least 5x less than ``complete``'s at 40 modules; met/MISSED
+  is printed for the whole run and for the run after bring-up.
 * **Simulation speed**: a 60-module Walter run (generated, path cost 0) with ``--program
   firmware``, whole process (interpreter start, bring-up, rounds, world verdict), sim time over
   wall time. Target >= 100x real time; min / median / max of 3 and the load average, since other
@@ -99,17 +99,18 @@ def _scenarios(tmp: Path) -> list[tuple[str, int, str]]:
 def test_walter_robot_time_against_complete(tmp_path):
     print("\nrobot time to the goal (sim s): whole run | after bring-up; complete / walter")
     print(f"{'scenario':<30} {'n':>3} {'bring-up':>9} {'walter':>16} {'complete':>16} {'ratio':>13}")
-    at_40 = []
+    at_40: list[tuple[float, float]] = []
     for label, n, scen in _scenarios(tmp_path):
         w, c = run(scen, "walter"), run(scen, "complete")
         whole, after = c.sim_s / w.sim_s, c.after_bringup_s / w.after_bringup_s
         print(f"{label:<30} {n:>3} {w.bringup_s:>8.1f}s {w.sim_s:>7.1f} |{w.after_bringup_s:>7.1f} "
               f"{c.sim_s:>7.1f} |{c.after_bringup_s:>7.1f} {whole:>5.2f}x|{after:>5.2f}x", flush=True)
         if n == 40:
-            at_40.append(after)
-    worst = min(at_40)
-    print(f"at 40 modules, after bring-up: worst {worst:.2f}x less than complete (target >= "
-          f"{RATIO_TARGET:.0f}x): {'met' if worst >= RATIO_TARGET else 'MISSED'}")
+            at_40.append((whole, after))
+    for k, what in enumerate(("whole run", "after bring-up")):
+        worst = min(r[k] for r in at_40)
+        print(f"at 40 modules, {what}: worst {worst:.2f}x less than complete (target >= "
+              f"{RATIO_TARGET:.0f}x): {'met' if worst >= RATIO_TARGET else 'MISSED'}")
 
 
 @pytest.mark.parametrize("program", ["firmware"])
