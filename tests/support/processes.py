@@ -3,16 +3,24 @@
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 
 from bus.session import free_port  # noqa: F401  (the tests' ports: one function with the application's)
 
 
+def _ctrl_c_as_on_a_terminal() -> None:
+    # A shell starts a background job with SIGINT ignored, and Python then installs no
+    # KeyboardInterrupt: tests that press Ctrl-C (SIGINT) must reach the command's own handler
+    # wherever the suite was started from.
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def hexbench(*args: str) -> subprocess.Popen:
     """``python -m hexbench ARGS`` with its output in a pipe (unbuffered: lines as they come)."""
     return subprocess.Popen([sys.executable, "-m", "hexbench", *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True,
+                            stderr=subprocess.STDOUT, text=True, preexec_fn=_ctrl_c_as_on_a_terminal,
                             env={**os.environ, "PYTHONUNBUFFERED": "1"})
 
 
