@@ -58,20 +58,37 @@ def draw_plan(plan: Plan, path: str | Path, columns: int = 4, max_panels: int = 
             edge = GOAL_EDGE if cell in goal else "#bdbdbd"
             ax.add_patch(Polygon(cell.vertices(), closed=True, facecolor=face, edgecolor=edge,
                                  linewidth=2.0 if cell in goal else 0.6))
-        for a, b in moving.items():
-            (x0, y0), (x1, y1) = a.centre(), b.centre()
-            ax.annotate("", xy=(x1, y1), xytext=(x0, y0),
-                        arrowprops=dict(arrowstyle="->", color="black", lw=1.2))
+        arrows(ax, moving, lw=1.2)
         title = "initial" if k == 0 else f"after step {k}"
         if k < len(plan.steps):
             title += f" | step {k + 1}: {len(plan.steps[k])} move(s)"
         ax.set_title(title, fontsize=8)
-        ax.set_xlim(min(xs) - 0.2, max(xs) + 0.2)
-        ax.set_ylim(min(ys) - 0.2, max(ys) + 0.2)
-        ax.set_aspect("equal")
+        fit(ax, xs, ys)
     status = "goal reached" if plan.ok else f"stopped: {plan.reason}"
     fig.suptitle(f"{plan.planner} on {plan.problem.name}: {len(plan.steps)} steps, "
                  f"{plan.moves} moves ({status})", fontsize=10)
+    return save(fig, path)
+
+
+def arrows(ax, moving: dict[Cell, Cell], lw: float) -> None:
+    """An arrow from each mover's cell to the cell it arrives in."""
+    for a, b in moving.items():
+        (x0, y0), (x1, y1) = a.centre(), b.centre()
+        ax.annotate("", xy=(x1, y1), xytext=(x0, y0),
+                    arrowprops=dict(arrowstyle="->", color="black", lw=lw))
+
+
+def fit(ax, xs: list[float], ys: list[float]) -> None:
+    """Every panel the same window around the cells drawn, hexagons not stretched."""
+    ax.set_xlim(min(xs) - 0.2, max(xs) + 0.2)
+    ax.set_ylim(min(ys) - 0.2, max(ys) + 0.2)
+    ax.set_aspect("equal")
+
+
+def save(fig, path: str | Path) -> Path:
+    """Lay the panels out, write the PNG and free the figure."""
+    import matplotlib.pyplot as plt
+
     fig.tight_layout()
     out = Path(path)
     fig.savefig(out, dpi=90)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from ..draw import ARRIVAL, FILL, FIXED, GOAL_EDGE, MOVER
+from ..draw import ARRIVAL, FILL, FIXED, GOAL_EDGE, MOVER, arrows, fit, save
 from .choose import Choice
 
 PATH_EDGE = "#756bb1"   # substrate path cells
@@ -51,13 +51,8 @@ def draw_walter(choice: Choice, path: str | Path, panels: int = 12, columns: int
             edge = PATH_EDGE if cell in on_path else GOAL_EDGE if cell in choice.goal else "#bdbdbd"
             ax.add_patch(Polygon(cell.vertices(), closed=True, facecolor=face, edgecolor=edge,
                                  linewidth=2.2 if cell in choice.goal else 0.5))
-        for a, b in movers.items():
-            (x0, y0), (x1, y1) = a.centre(), b.centre()
-            ax.annotate("", xy=(x1, y1), xytext=(x0, y0),
-                        arrowprops=dict(arrowstyle="->", color="black", lw=1.0))
-        ax.set_xlim(min(xs) - 0.2, max(xs) + 0.2)
-        ax.set_ylim(min(ys) - 0.2, max(ys) + 0.2)
-        ax.set_aspect("equal")
+        arrows(ax, movers, lw=1.0)
+        fit(ax, xs, ys)
 
     flat = list(axes.flat)
     ax = flat[0]
@@ -72,8 +67,4 @@ def draw_walter(choice: Choice, path: str | Path, panels: int = 12, columns: int
         ax.set_title("initial" if k == 0 else f"after round {k}", fontsize=8)
     fig.suptitle(f"walter: n = {model.n}, rounds predicted {len(model.rounds)}, "
                  f"moves {sum(len(r.moves) for r in model.rounds)}", fontsize=10)
-    fig.tight_layout()
-    out = Path(path)
-    fig.savefig(out, dpi=90)
-    plt.close(fig)
-    return out
+    return save(fig, path)
