@@ -34,7 +34,7 @@ class Side(IntEnum):
     @classmethod
     def of(cls, k: int) -> "Side":
         """Fold any integer into 1..6 the way the firmware does."""
-        return _SIDES[(k - 1) % 6]  # not cls(...): the enum's lookup was ~6 % of a Walter run
+        return _SIDES[(k - 1) % 6]  # a tuple, not cls(...): the enum call is slow on hot paths
 
     @property
     def facing(self) -> "Side":
