@@ -21,7 +21,7 @@ from __future__ import annotations
 import json
 import re
 from functools import lru_cache
-from typing import Any, Iterable
+from typing import Any, Iterable, Protocol
 
 from foxglove.messages import (Color, KeyValuePair, LinePrimitive, LinePrimitiveLineType, Log, LogLevel,
                                Point3, Pose as FoxPose, Quaternion, SceneEntity, SceneUpdate, SpherePrimitive,
@@ -216,12 +216,23 @@ def _joints(p: Placement, opened: tuple[bool, ...]) -> list[SpherePrimitive]:
             for j, o in zip(p.joint_points(JOINT_INSET), states) for s in [0.14 if o else 0.08]]
 
 
+class LineStore(Protocol):
+    """Lines kept elsewhere (the recorder's C batch path, which makes lines too): a line made
+    there is the line of its frame here, and a line made here is given there."""
+
+    def line(self, head: bytes, kind: bytes) -> bytes | None: ...
+
+    def remember(self, head: bytes, kind: bytes, rest: bytes) -> None: ...
+
+
 class FrameLog:
     """Frames in, encoded ``foxglove.Log`` messages out (one line per frame, as the replay's)."""
 
     def __init__(self) -> None:
         self.lines = FrameLines()
         self._seen: dict[tuple[bytes, str | None], bytes] = {}  # -> the encoded Log without its timestamp
+        #: where lines are shared (by an envelope's head as Envelope.to_json writes it, and kind)
+        self.shared: LineStore | None = None
 
     def log(self, env: Envelope, t_ns: int) -> bytes:
         level = LogLevel.Warning if env.kind == Kind.NOISE.value else LogLevel.Info
@@ -257,13 +268,30 @@ class FrameLog:
         """The encoded Log of a frame without its timestamp, remembered under ``key``
         (``ValueError``/``KeyError``/``TypeError`` if the payload is no envelope)."""
         env = Envelope.from_json(payload)
-        rest = Log(level=LogLevel.Warning if env.kind == Kind.NOISE.value else LogLevel.Info,
-                   message=self.lines.line(env), name=f"{env.link}/{env.src}").encode()
+        shared = self.shared
+        if shared is not None:
+            head, kind = _head(env), str(env.kind).encode()
+            rest = shared.line(head, kind)
+            if rest is None:
+                rest = self._encode(env)
+                shared.remember(head, kind, rest)
+        else:
+            rest = self._encode(env)
         if key is not None:
             if len(self._seen) > 65536:  # a long run of ever-new frames: start over
                 self._seen.clear()
             self._seen[key] = rest
         return rest
+
+    def _encode(self, env: Envelope) -> bytes:
+        return Log(level=LogLevel.Warning if env.kind == Kind.NOISE.value else LogLevel.Info,
+                   message=self.lines.line(env), name=f"{env.link}/{env.src}").encode()
+
+
+def _head(env: Envelope) -> bytes:
+    """An envelope's bytes before ``,"sim_time_ns"`` as :meth:`Envelope.to_json` writes them."""
+    return (f'{{"link":{json.dumps(env.link)},"src":{json.dumps(env.src)},"dst":{json.dumps(env.dst)},'
+            f'"raw":"{env.raw.hex()}"').encode()
 
 
 _KIND = re.compile(rb'"kind":"([a-z0-9_-]*)"')
