@@ -1,5 +1,5 @@
-"""The recorder's compiled batch path for frames and actuator records (``native/framebatch.c``, loaded
-with ctypes).
+"""The recorder's compiled batch path for frames, actuator records, events and light
+(``native/framebatch.c``, loaded with ctypes).
 
 A frame costs the pure-Python recorder a few microseconds (its fields read by a regex, two
 records packed, indexed and counted, its Foxglove line stamped); a fleet puts hundreds of
@@ -7,10 +7,19 @@ thousands a second. :class:`FrameBatch` hands a whole batch of frame envelopes t
 writes the records :meth:`recordings.recorder.Recorder.write` would (the same bytes, sequence
 numbers, chunk offsets) and stops whenever Python must act: a sample that is not an envelope
 as the bus writes it, a channel or a Foxglove line not seen yet, a full chunk. It writes an
-actuator record too once Python wrote the same bytes but the time on that channel and the
-coils are the channel's last (:meth:`FrameBatch.record_seen`): what the careful path would
+actuator record too when its head (``{"module":"<its module>","sim_time_ns":``) is one Python
+wrote on that channel, its tail (the bytes after its time) one Python wrote on any channel,
+and its coils the channel's last (:meth:`FrameBatch.record_seen`): what the careful path would
 write, count by topic and derive nothing from. :func:`index_records` writes a chunk's
 MessageIndex records.
+
+A batch in ``bus.transport.pack_batch``'s bytes (:meth:`recordings.recorder.Recorder.write_packed`)
+goes to C whole (``fb_packed``): C keeps the recorder's keys (how each key's samples are
+written, on which channel), writes frames, actuator records, events and light, makes the Log
+line of a frame whose describe text it holds (:meth:`FrameBatch.describe`), and counts by key
+and event kind until Python folds the counts into its tally. The Log lines live in C for both
+paths and for Python's own (``FrameLog.shared``), so a line once made is its frame's line
+everywhere.
 
 The library is built with ``make -C recordings/native`` when missing or older than its source
 (only a C compiler is needed). Without it — no compiler, or ``HEXBENCH_NATIVE=0`` — :data:`LIB`

@@ -19,8 +19,11 @@ is visible"; rosbag2/MCAP as the model).
 * Fast: payloads are written exactly as they came from the bus (never re-serialised), frames
   and schemaless keys without being decoded (see :class:`_Route`), into large chunks by
   :class:`recordings.mcap_writer.FastMcapWriter`; ``strict=True`` decodes every payload.
-  :meth:`Recorder.write_batch` (what :meth:`Recorder.attach` subscribes with, to get a
-  ``Bus.put_batch`` whole) writes many samples under one lock: the records ``write`` would.
+  :meth:`Recorder.write_batch` writes many samples under one lock: the records ``write``
+  would; :meth:`Recorder.write_packed` the same from a batch in ``pack_batch``'s bytes, in C
+  for every sample C can take (what :meth:`Recorder.attach` subscribes with, so a batch from
+  ``Bus.put_batch``, ``Bus.put_packed`` or another process is written without a Python object
+  per sample that nothing acts on).
 """
 
 from __future__ import annotations
