@@ -306,6 +306,10 @@ def _early_plan(scenario: Scenario, planner: str) -> Plan | None:
 
     if planner == planners.WALTER:
         from planner_svc.planners.walter import Inadmissible, choose
+        from planner_svc.rounds import beyond_the_modules
+        too_many = beyond_the_modules(len(scenario.modules))
+        if too_many:  # whichever program the modules run: the C table's size is the limit
+            raise UsageError(f"planner walter: {too_many}")
         try:  # an inadmissible goal is refused before anything moves
             choose(scenario.goal, scenario.initial, model=False)
         except Inadmissible as exc:

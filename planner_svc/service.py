@@ -211,8 +211,11 @@ class PlannerService:
         module reports its goal reached (or the round limit), then the world's verdict. The
         fleet is held to the round model round by round."""
         from .planners.walter import Inadmissible, choose
-        from .rounds import RoundDriver, problem_of
+        from .rounds import RoundDriver, beyond_the_modules, problem_of
 
+        too_many = beyond_the_modules(len(self.scenario.modules))
+        if too_many:  # before bring-up (hexbench run refuses it before the fleet boots)
+            raise PlanError(f"walter: {too_many}")
         view = self.bringup.run(since_ns)
         if self.scenario.profile == "thesis-2009":
             raise BringUpError("thesis-2009 modules have no Walter rounds: use the v2 profile")
