@@ -224,7 +224,9 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
     with contextlib.ExitStack() as stack:  # everything the run opens, closed in reverse order
         stack.enter_context(rarer_young_collections())
         bus = _open_bus(opts, stack)
-        with Progress() as progress:  # a bar on a terminal, cleared before the summary lines
+        from planner_svc.planners import progress_unit
+        # a bar on a terminal (moves n/N in steps, or in rounds), cleared before the summary lines
+        with Progress(unit=progress_unit(opts.planner)) as progress:
             parts = _set_up(opts, args, bus, stack, progress)
             result = parts.service.run(parts.since_ns)
         _end(parts, result)

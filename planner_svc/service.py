@@ -97,8 +97,7 @@ class PlannerService:
         t = (self.bus.clock.now_ns() - self.bus.clock.started_ns) / NS_PER_S
         of = f"/{self._planned}" if self._planned else ""
         # the last line names the outcome only: the caller prints the run's summary once
-        unit = "round" if self.planner_name == planners.WALTER else "step"  # a beat is a round
-        self.say(f"[{t:8.2f} s] {unit} {step:3} moves {moves:3}{of} "
+        self.say(f"[{t:8.2f} s] {planners.progress_unit(self.planner_name)} {step:3} moves {moves:3}{of} "
                  f"goal {filled}/{len(goal)}  {message.split('; ')[0] if done else message}"
                  + ("" if done else self._time_left(moves)))
 
