@@ -15,6 +15,7 @@
  * the same message, count it by topic and derive nothing (the scene draws joints and magnets
  * only). Anything else is Python's, in its place.
  */
+#define _GNU_SOURCE /* memmem */
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
@@ -286,10 +287,7 @@ void fb_records_free(records_t *r) {
 }
 
 static const uint8_t *find(const uint8_t *p, int64_t n, const char *s) {
-    size_t k = strlen(s);
-    for (int64_t i = 0; i + (int64_t)k <= n; i++)
-        if (p[i] == (uint8_t)s[0] && memcmp(p + i, s, k) == 0) return p + i;
-    return NULL;
+    return n > 0 ? memmem(p, (size_t)n, s, strlen(s)) : NULL;
 }
 
 /* A record's sim time digits: [*at, *at + *len), the value; 0 if it has not exactly one

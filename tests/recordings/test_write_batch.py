@@ -270,3 +270,32 @@ def test_packed_batches_leave_python_only_what_it_acts_on(tmp_path, monkeypatch)
     # did not take an odd one's coils, or it named another module)
     assert len(acted) <= coil_changes + len(records) // 25
     assert len(lines) == 3  # one describe text per kind of frame, every other line made in C
+
+
+def test_log_lines_made_in_c_are_the_sdks_own_encoding(tmp_path):
+    """The Log lines write_packed makes in C (every line but the first of each describe text)
+    are what Foxglove's SDK encodes for the frame's line: short and long names (lengths over
+    127 take two bytes), noise at the warning level."""
+    if native.lib() is None:
+        missing("the native batch path (a C compiler builds it)")
+    from foxglove.messages import Log, LogLevel
+
+    from recordings.foxglove import timestamp
+    from recordings.lines import describe
+
+    frames = [(Link.SIDE, parse(Link.SIDE, encode_msg1(3, -2, 4))), (Link.CENTRE, parse(Link.CENTRE, encode_ack(21))),
+              (Link.SIDE, parse(Link.SIDE, b"\x07\x07"))]
+    samples, envs = [], []
+    for i, src in enumerate(["m1.comm", "m" + "7" * 60 + ".comm", "s" * 200, "a b!#$%&'()*+,-./:;<=>?@[]^_`{|}~"]):
+        for j, (link, frame) in enumerate(frames):
+            env = Envelope.of(frame, src=src, dst="*" if j else "d" * (40 * i), sim_time_ns=10 * i + j,
+                              wall_time_ns=WALL_NS, seq=i)
+            samples.append((f"{ROOT}/frame/{link.value}/m{i}.comm", _envelope_json(env)))
+            envs.append(env)
+    rec = _record(tmp_path / "lines.mcap", samples, 500, packed=True)
+    lines = [data for topic, *_, data in _messages(rec.paths[0]) if topic == "foxglove/log"]
+    assert lines == [Log(timestamp=timestamp(START_NS + env.sim_time_ns),
+                         level=LogLevel.Warning if env.kind == "noise" else LogLevel.Info,
+                         message=f"{env.src} → {env.dst}  {describe(env)}  [{env.raw.hex()}]",
+                         name=f"{env.link}/{env.src}").encode() for env in envs]
+    assert any(env.kind == "noise" for env in envs)
