@@ -40,7 +40,8 @@ from typing import Any
 HERE = Path(__file__).resolve().parent / "native"
 LIB_PATH = HERE / "build" / "libframebatch.so"
 #: fb_frames's and fb_packed's answers (framebatch.c)
-DONE, NOT_FRAME, NEW_CHANNEL, NEW_LOG_CHANNEL, REST_MISS, CHUNK_FULL, OUT_FULL, GROW_SEQS, NEW_KEY, PYTHON = range(10)
+(DONE, NOT_FRAME, NEW_CHANNEL, NEW_LOG_CHANNEL, REST_MISS, CHUNK_FULL, OUT_FULL, GROW_SEQS, NEW_KEY, PYTHON,
+ BAD_BATCH, COILS) = range(12)
 #: how fb_packed writes the samples of a key (framebatch.c FB_KEY_*)
 KEY_PYTHON, KEY_FRAME, KEY_RECORD, KEY_FAST, KEY_EVENT = range(5)
 _p = ctypes.c_void_p

@@ -423,25 +423,27 @@ static int room(batch_t *b, int64_t len) {
 }
 
 #define RECORD_CHUNK_FULL 100
+#define RECORD_COILS 101
 /* A record Python wrote before but its time, with the channel's coils: written (0, or
  * RECORD_CHUNK_FULL if the chunk is full after it), or FB_NOT_FRAME (Python's), or what
- * Python must do first. */
-static int record(batch_t *b, int32_t cid, const uint8_t *p, int64_t n) {
+ * Python must do first. With coils: the same record with other coils than the channel's last
+ * (a coil change) is written too, and RECORD_COILS says Python must feed the scene with it. */
+static int record(batch_t *b, int32_t cid, const uint8_t *p, int64_t n, int coils_too) {
     records_t *r = b->recs;
     int64_t at, len;
     uint64_t sim;
     const uint8_t *coils;
     int64_t coils_len;
-    if (!r || cid <= 0 || cid >= r->ncoils || !r->coils[cid] || !record_time(p, n, &at, &len, &sim) ||
-        sim >= MAX_TIME || (uint64_t)b->origin + sim >= (1ULL << 63))
+    if (!r || cid <= 0 || cid >= r->ncoils || !record_time(p, n, &at, &len, &sim) || sim >= MAX_TIME ||
+        (uint64_t)b->origin + sim >= (1ULL << 63))
         return FB_NOT_FRAME;
     const uint8_t *tail = p + at + len;
     int64_t tl = n - at - len;
     if (!r->heads[cid] || r->heads_len[cid] != at || memcmp(p, r->heads[cid], (size_t)at) != 0)
         return FB_NOT_FRAME;
-    if (!record_coils(tail, tl, &coils, &coils_len) || coils_len != r->coils_len[cid] ||
-        memcmp(coils, r->coils[cid], (size_t)coils_len) != 0)
-        return FB_NOT_FRAME;
+    int same = r->coils[cid] && record_coils(tail, tl, &coils, &coils_len) && coils_len == r->coils_len[cid] &&
+               memcmp(coils, r->coils[cid], (size_t)coils_len) == 0;
+    if (!same && !coils_too) return FB_NOT_FRAME;
     if (!table_get(&r->known, tail, (int32_t)tl, (const uint8_t *)"", 0, TAG_TAIL)) return FB_NOT_FRAME;
     if (cid >= b->nseqs) return FB_GROW_SEQS;
     if (!room(b, n)) return FB_OUT_FULL;
@@ -452,8 +454,10 @@ static int record(batch_t *b, int32_t cid, const uint8_t *p, int64_t n) {
     if (b->frames == 1 || log_time < b->tmin) b->tmin = log_time;
     if (b->frames == 1 || log_time > b->tmax) b->tmax = log_time;
     if (!b->packed) b->noise[b->item] = 2;
-    /* no wall_time_ns in it (Python knew these bytes): published at the batch's receive time */
-    return message(b, cid, (uint64_t)log_time, (uint64_t)b->wall, p, n, NULL, 0) ? RECORD_CHUNK_FULL : 0;
+    /* no wall_time_ns in it (Python knew these bytes): published at the batch's receive time;
+     * after a coil change Python closes a full chunk before it writes the scene's message */
+    int full = message(b, cid, (uint64_t)log_time, (uint64_t)b->wall, p, n, NULL, 0);
+    return !same ? RECORD_COILS : full ? RECORD_CHUNK_FULL : 0;
 }
 
 int fb_frames(batch_t *b) {
@@ -466,7 +470,7 @@ int fb_frames(batch_t *b) {
         if (!parse(p, n, &head_len, &sim, &pub, &kind_at, &kind_len) || sim >= MAX_TIME || pub >= MAX_TIME ||
             (uint64_t)b->origin + sim >= (1ULL << 63)) {
             if (b->phase) return -1; /* cannot happen: it parsed a moment ago */
-            int code = record(b, b->cids[b->item], p, n);
+            int code = record(b, b->cids[b->item], p, n, 0);
             if (code == 0) continue;
             if (code == RECORD_CHUNK_FULL) {
                 b->item++;
@@ -528,7 +532,7 @@ int fb_frames(batch_t *b) {
  * and by event kind stay here until Python folds them into its tally. */
 
 enum { FB_KEY_PYTHON = 0, FB_KEY_FRAME = 1, FB_KEY_RECORD = 2, FB_KEY_FAST = 3, FB_KEY_EVENT = 4 };
-enum { FB_NEW_KEY = 8, FB_PYTHON = 9, FB_BAD_BATCH = 10 };
+enum { FB_NEW_KEY = 8, FB_PYTHON = 9, FB_BAD_BATCH = 10, FB_COILS = 11 };
 
 typedef struct keys {
     table_t t;              /* key bytes -> entry (slot id) */
@@ -975,12 +979,14 @@ int fb_packed(batch_t *b) {
                 if (b->phase) return -1;
                 return FB_NEW_CHANNEL;
             }
-            int code = record(b, cid, p, n);
+            int code = record(b, cid, p, n, 1);
             if (code == FB_NOT_FRAME) return FB_PYTHON;
-            if (code != 0 && code != RECORD_CHUNK_FULL) return code;
+            if (code != 0 && code != RECORD_CHUNK_FULL && code != RECORD_COILS) return code;
             keys->count[id]++;
+            b->item = b->pos;
             b->pos = next;
             b->samples++;
+            if (code == RECORD_COILS) return FB_COILS;
             if (code == RECORD_CHUNK_FULL) return FB_CHUNK_FULL;
             continue;
         }
