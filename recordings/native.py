@@ -113,8 +113,6 @@ def _load() -> Any:
     lib.fb_kind_counts.restype = _i64
     lib.fb_describe_put.argtypes = [_p, ctypes.c_char_p, _i64, ctypes.c_char_p, _i32]
     lib.fb_describe_put.restype = ctypes.c_int
-    lib.fb_check_packed.argtypes = [ctypes.c_char_p, _i64]
-    lib.fb_check_packed.restype = ctypes.c_int
     lib.fb_packed.argtypes = [ctypes.POINTER(_Batch)]
     lib.fb_packed.restype = ctypes.c_int
     return lib
@@ -209,10 +207,6 @@ class FrameBatch:
         envelope exactly as ``Envelope.to_json`` writes it): fb_packed makes their lines."""
         if self.lib.fb_describe_put(self.rests, envelope, len(envelope), text, len(text)) < 0:
             raise MemoryError("fb_describe_put")
-
-    def check_packed(self, data: bytes) -> bool:
-        """Whether fb_packed takes ``data`` (pack_batch's bytes, every key ASCII)."""
-        return self.lib.fb_check_packed(data, len(data)) == 0
 
     def key(self, key: bytes, how: int, cid: int) -> int:
         """Enter a key (``how``: KEY_*; ``cid``: its channel, 0 none yet); its number."""

@@ -226,6 +226,7 @@ class Recorder:
         self._pending_noise: Counter[str] = Counter()
         self._pending_frames = 0
         self._packed_pending = False  # counts wait in C (write_packed)
+        self._native_live = False  # C holds the open chunk's end (write_packed; McapSink.held)
         self.paths: list[Path] = []
         self._required: dict[str, tuple[str, ...]] = {}
         self._last_sim_ns = 0
@@ -286,20 +287,18 @@ class Recorder:
         path, writes the unpacked samples."""
         wall = time.time_ns() if receive_wall_ns is None else receive_wall_ns
         fb = self._native
-        if self.strict or self.rotating or fb is None or not fb.check_packed(data):
-            self.write_batch(unpack_batch(data), receive_wall_ns=wall)
-            return
-        if not data:
-            return
-        with self._lock:
-            if self._closed:
-                return
-            st = fb.state
-            st.packed, st.packed_len, st.pos, st.samples = data, len(data), 0, 0
-            try:
-                self._write_packed_native(fb, data, wall)
-            finally:
-                st.packed = None
+        if fb is not None and not self.strict and not self.rotating:
+            with self._lock:
+                if self._closed:
+                    return
+                st = fb.state
+                st.packed, st.packed_len, st.pos, st.samples = data, len(data), 0, 0
+                try:
+                    if self._write_packed_native(fb, data, wall):
+                        return
+                finally:
+                    st.packed = None
+        self.write_batch(unpack_batch(data), receive_wall_ns=wall)
 
     # -- writing ----------------------------------------------------------------------------
     def write(self, key: str, payload: bytes, *, receive_wall_ns: int | None = None) -> None:
@@ -499,50 +498,32 @@ class Recorder:
             if st.frames:
                 self._count_frames(keys, slow, fb.noise.raw[:n], st.tmin, st.tmax)
 
-    def _write_packed_native(self, fb: native.FrameBatch, data: bytes, wall: int) -> None:
-        """write_packed's loop (under the lock): C writes, Python does what C stops for."""
+    def _write_packed_native(self, fb: native.FrameBatch, data: bytes, wall: int) -> bool:
+        """write_packed's loop (under the lock): C writes, Python does what C stops for; False
+        if C takes none of it (bytes that do not frame, a key that is not ASCII). The end of
+        the open chunk stays in C between batches (``McapSink.held`` gives it to the file
+        before anything else is written there)."""
         st = fb.state
         log = self._fox.log if self._fox is not None else None
         st.by_sim, st.origin, st.wall = self.time_source != "wall", self._origin, wall
-        st.rests, st.limit = fb.rests, self._sink.writer.chunk_size
-        if len(fb.ix[0]) < fb.PACKED_INDEX:
-            fb.prepare(fb.PACKED_INDEX // 2)
-        ix_cid, ix_time, ix_off = fb.ix
-        st.ix_cid, st.ix_time, st.ix_off = (a.buffer_info()[0] for a in fb.ix)
-        st.ix_cap, st.frames, st.last_sim, st.phase, st.no_log = len(ix_cid), 0, self._last_sim_ns, 0, 0
-
-        def load() -> None:  # after Python wrote: the sink's state into C's
-            sink = self._sink
-            st.chunk_bytes, st.chunk_messages, st.chunk_start, st.chunk_end = sink.writer.chunk_state
-            st.seqs, st.nseqs = sink.sequences.buffer_info()
-            st.log_cid = -1 if log is None else self._cids.get(LOG_TOPIC, 0)
-            st.out, st.out_cap, st.out_len, st.ix_len = ctypes.addressof(fb.out), len(fb.out), 0, 0
-
-        def commit() -> None:  # before Python writes: C's records into the sink
-            k = st.ix_len
-            if not k:
-                return
-            self._sink.writer.add_records(
-                ctypes.string_at(fb.out, st.out_len), ix_cid[:k], ix_time[:k], ix_off[:k],
-                (st.chunk_bytes, st.chunk_messages, st.chunk_start, st.chunk_end))
-            self._sink.dirty = True
-            st.out_len = st.ix_len = 0
+        st.frames, st.last_sim, st.phase, st.no_log = 0, self._last_sim_ns, 0, 0
+        if not self._native_live:
+            self._native_load()
 
         def sample() -> tuple[str, bytes, int]:  # the sample C stopped at: key, payload, where the next starts
             klen, plen = _BATCH_ITEM.unpack_from(data, st.pos)
             start = st.pos + 6 + klen
             return data[st.pos + 6:start].decode(), data[start:start + plen], start + plen
 
-        load()
         while True:
             code = fb.run_packed()
             if code == native.DONE:
-                commit()
                 break
+            if code == native.BAD_BATCH:
+                return False
             if code == native.NEW_KEY:
                 self._new_key(fb, sample()[0])
-                continue
-            if code == native.REST_MISS:  # a Foxglove line C cannot make: FrameLog makes it
+            elif code == native.REST_MISS:  # a Foxglove line C cannot make: FrameLog makes it
                 assert log is not None
                 head = data[st.head_at:st.head_at + st.head_len]
                 kind_b = data[st.kind_at:st.kind_at + st.kind_len]
@@ -559,13 +540,12 @@ class Recorder:
                     if env.to_json() == payload:  # its describe text makes the lines of its likes
                         fb.describe(payload, describe(env).encode())
                 fb.remember(head, kind_b, rest)
-                continue
-            if code == native.OUT_FULL and st.out_len == 0:  # one record larger than the buffer
-                fb.grow_out(2 * len(sample()[1]) + 4096)
-                load()
-                continue
-            commit()
-            if code == native.CHUNK_FULL:
+            elif code == native.OUT_FULL:  # C's records into the file (and a larger buffer for a large one)
+                empty = st.out_len == 0
+                self._sink.release_held()
+                if empty:
+                    fb.grow_out(2 * len(sample()[1]) + 4096)
+            elif code == native.CHUNK_FULL:
                 self._sink.writer.close_chunk()
             elif code == native.NEW_LOG_CHANNEL:
                 self._cids[LOG_TOPIC] = self._sink.channel(LOG_TOPIC)
@@ -592,16 +572,52 @@ class Recorder:
                 self._last_sim_ns = st.last_sim
                 self._write_one(route, key, payload, wall)
                 st.last_sim = self._last_sim_ns
-            elif code != native.OUT_FULL:
+            else:
                 raise RuntimeError(f"framebatch.c answered {code}")
-            load()
+            if not self._native_live:  # Python wrote: the file's state into C's
+                self._native_load()
         self._last_sim_ns = st.last_sim
         if st.frames:
+            self._sink.dirty = True
             self._pending_frames += st.frames
             self._packed_pending = True
             if self._part_first_ns is None:
                 self._part_first_ns = st.tmin
             self._part.span(st.tmin, st.tmax)
+        return True
+
+    def _native_load(self) -> None:
+        """The open file's state into C's (write_packed), which holds the chunk's end from now
+        until something else is written there."""
+        fb = self._native
+        assert fb is not None
+        st, sink = fb.state, self._sink
+        st.chunk_bytes, st.chunk_messages, st.chunk_start, st.chunk_end = sink.writer.chunk_state
+        st.seqs, st.nseqs = sink.sequences.buffer_info()
+        st.log_cid = -1 if self._fox is None else self._cids.get(LOG_TOPIC, 0)
+        st.rests, st.limit = fb.rests, self.chunk_size
+        if len(fb.ix[0]) < fb.PACKED_INDEX:
+            fb.prepare(fb.PACKED_INDEX // 2)
+        st.ix_cid, st.ix_time, st.ix_off = (a.buffer_info()[0] for a in fb.ix)
+        st.ix_cap = len(fb.ix[0])
+        st.out, st.out_cap, st.out_len, st.ix_len = ctypes.addressof(fb.out), len(fb.out), 0, 0
+        self._native_live = True
+        sink.held = self._native_release
+
+    def _native_release(self) -> None:
+        """C's records into the file (``McapSink.held``: before anything else is written there)."""
+        fb = self._native
+        assert fb is not None
+        self._native_live = False
+        st = fb.state
+        k = st.ix_len
+        if not k:
+            return
+        ix_cid, ix_time, ix_off = fb.ix
+        self._sink.writer.add_records(ctypes.string_at(fb.out, st.out_len), ix_cid[:k], ix_time[:k], ix_off[:k],
+                                      (st.chunk_bytes, st.chunk_messages, st.chunk_start, st.chunk_end))
+        self._sink.dirty = True
+        st.out_len = st.ix_len = 0
 
     def _coil_change(self, key: str, payload: bytes, wall: int) -> None:
         """An actuator record C wrote whose coils are not its channel's (its head and tail are
@@ -871,6 +887,7 @@ class Recorder:
         self._part_first_ns = None
         self._cids = {}  # channel ids are per file
         self._frame_cids = _NoChannel()
+        self._native_live = False
         if getattr(self, "_native", None) is not None:
             self._native.reset_records()
         return sink

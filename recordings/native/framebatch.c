@@ -958,6 +958,8 @@ int fb_check_packed(const uint8_t *data, int64_t len) {
 
 int fb_packed(batch_t *b) {
     keys_t *keys = b->keys;
+    /* a batch that does not frame, or has a key that is not ASCII, is Python's whole */
+    if (b->pos == 0 && b->samples == 0 && fb_check_packed(b->packed, b->packed_len)) return FB_BAD_BATCH;
     while (b->pos < b->packed_len) {
         const uint8_t *s = b->packed + b->pos;
         int64_t left = b->packed_len - b->pos;

@@ -301,3 +301,21 @@ def test_log_lines_made_in_c_are_the_sdks_own_encoding(tmp_path):
                          message=f"{env.src} → {env.dst}  {describe(env)}  [{env.raw.hex()}]",
                          name=f"{env.link}/{env.src}").encode() for env in envs]
     assert any(env.kind == "noise" for env in envs)
+
+
+def test_what_c_holds_between_batches_reaches_the_file_on_a_flush(tmp_path):
+    """write_packed leaves the open chunk's end in C between batches: a flush (the flush
+    thread's, or one before anything Python writes) puts it in the file, so a killed recorder
+    loses no more than before."""
+    from recordings.reader import read_frames
+
+    rec = Recorder(tmp_path / "held.mcap", fleet=FLEET, time_source="sim", start_ns=START_NS, flush_interval_s=3600)
+    frames = _many_frames(300)
+    for i in range(0, 300, 30):
+        rec.write_packed(pack_batch(frames[i:i + 30]), receive_wall_ns=WALL_NS)
+    rec.flush()  # no footer: read as a killed recorder's file is
+    assert len(list(read_frames(tmp_path / "held.mcap"))) == 300
+    rec.write(*frames[0], receive_wall_ns=WALL_NS)  # Python writes after what C held, in order
+    rec.write_packed(pack_batch(frames[:5]), receive_wall_ns=WALL_NS)
+    rec.close()
+    assert [e.seq for e in read_frames(tmp_path / "held.mcap")] == list(range(300)) + [0] + list(range(5))
