@@ -76,9 +76,12 @@ WALTER_BUSY = b"W"
 WALTER_NO_POSITION = 255
 WALTER_REQUEST_LEN = 4
 WALTER_ANSWER_LEN = 3
-#: Goal table entries a module holds (positions 0..63: n up to 65), three bytes each of the
-#: comm board's RAM (docs/firmware.md); entries beyond are not kept.
+#: Goal table entries a module holds (positions 0..63), three bytes each of the comm board's
+#: RAM (docs/firmware.md); entries beyond are not kept. The C table is this size (hexbot_gen.h).
 WALTER_TABLE_CAPACITY = 64
+#: The largest Walter problem a module holds: an entry per position but the anchor's. The PC
+#: refuses a larger one before the fleet boots (planner_svc.rounds.beyond_the_modules).
+WALTER_MAX_MODULES = WALTER_TABLE_CAPACITY + 1
 
 
 class Link(str, Enum):

@@ -17,6 +17,10 @@ How a sample travels:
   a batch that match it in one call, through one inbox post; other processes get the batch as
   one zenoh sample on ``hexbot/@batch/<fleet>`` (:func:`pack_batch`), which their hub unpacks
   so that every handler there sees each sample under its own key, in order.
+* **Packed**, ``put_packed`` takes a batch already in :func:`pack_batch`'s bytes (rendered in
+  C): the same effect as ``put_batch`` of its samples, but a handler registered with
+  ``subscribe_batch(..., packed=True)`` gets such bytes, and the samples are unpacked only
+  for the handlers that take them as ``(key, payload)`` (here and in other processes).
 """
 
 from __future__ import annotations
@@ -26,7 +30,7 @@ import itertools
 import json
 import struct
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 import zenoh
 
@@ -41,6 +45,8 @@ Handler = Callable[[str, bytes], None]
 #: A batch handler's argument: ``(key, payload)`` of every sample of a batch that matched it, in order.
 Samples = Sequence[tuple[str, bytes]]
 BatchHandler = Callable[[list[tuple[str, bytes]]], None]
+#: A packed batch handler's argument: the samples that matched it, in :func:`pack_batch`'s bytes.
+PackedHandler = Callable[[bytes], None]
 
 #: The key of the flush barrier (a verbatim ``@`` chunk: no ``hexbot/**`` matches it), and how
 #: long a closing session waits for the answers of the processes that subscribe to it.
@@ -70,19 +76,57 @@ def unpack_batch(data: bytes) -> list[tuple[str, bytes]]:
     """The samples of :func:`pack_batch`'s bytes; ``ValueError`` if they are not such bytes."""
     out: list[tuple[str, bytes]] = []
     add = out.append
+    mv = memoryview(data)
+    for off, klen, end in _samples(data):
+        start = off + 6
+        add((str(mv[start:start + klen], "utf-8"), data[start + klen:end]))
+    return out
+
+
+def batch_keys(data: bytes) -> tuple[list[bytes], list[int]]:
+    """The keys (UTF-8, not decoded) of :func:`pack_batch`'s bytes and where each sample ends
+    (the next starts there), without copying a payload; ``ValueError`` as :func:`unpack_batch`."""
+    keys: list[bytes] = []
+    ends: list[int] = []
+    add, end_at = keys.append, ends.append
+    for off, klen, end in _samples(data):
+        add(data[off + 6:off + 6 + klen])
+        end_at(end)
+    return keys, ends
+
+
+def _samples(data: bytes) -> Iterator[tuple[int, int, int]]:
+    """Per sample of a packed batch: where it starts, its key's length, where it ends."""
     unpack = _BATCH_ITEM.unpack_from
     off, end = 0, len(data)
-    mv = memoryview(data)
     while off < end:
         if end - off < 6:
             raise ValueError(f"batch cut short: {end - off} bytes where a sample header (6) belongs")
         klen, plen = unpack(data, off)
-        start = off + 6
-        off = start + klen + plen
-        if off > end or not klen:
-            raise ValueError(f"batch sample at byte {start - 6} runs past the end ({off} > {end}) or has no key")
-        add((str(mv[start:start + klen], "utf-8"), data[start + klen:off]))
-    return out
+        nxt = off + 6 + klen + plen
+        if nxt > end or not klen:
+            raise ValueError(f"batch sample at byte {off} runs past the end ({nxt} > {end}) or has no key")
+        yield off, klen, nxt
+        off = nxt
+
+
+def select_samples(data: bytes, ends: list[int], keep: Sequence[bool]) -> bytes:
+    """The samples of packed ``data`` (sample ``i`` ends at ``ends[i]``) where ``keep`` is
+    true, packed: runs of kept samples are copied whole."""
+    parts: list[bytes] = []
+    run: int | None = None  # where the current run of kept samples starts
+    prev = 0
+    for i, k in enumerate(keep):
+        if k:
+            if run is None:
+                run = prev
+        elif run is not None:
+            parts.append(data[run:prev])
+            run = None
+        prev = ends[i]
+    if run is not None:
+        parts.append(data[run:prev])
+    return b"".join(parts)
 
 
 @dataclass(eq=False)
@@ -96,6 +140,7 @@ class Subscription:
     hub: "_Hub"
     who: str  # the participant, for its bad-sample events
     batch: bool = False  # handler(list of (key, payload)), see Bus.subscribe_batch
+    packed: bool = False  # a batch handler that takes pack_batch's bytes instead
     active: bool = True
 
     @property
@@ -164,6 +209,21 @@ class _Hub:
             subs = self.cache[key] = tuple(sorted(found, key=lambda s: s.index))
         return subs
 
+    def routes(self, keys: list[bytes]) -> list[tuple[Subscription, ...]]:
+        """The subscriptions of each key of a packed batch (UTF-8 keys, cached as they are:
+        bytes and str keys never collide in ``cache``); ``ValueError`` for a key that is not
+        UTF-8, zenoh's error for one that is no key expression."""
+        cache = self.cache
+        routes = list(map(cache.get, keys))
+        if None in routes:
+            for i, (k, subs) in enumerate(zip(keys, routes)):
+                if subs is None:
+                    subs = cache.get(k)
+                    if subs is None:
+                        subs = cache[k] = self.matches(k.decode())
+                    routes[i] = subs
+        return routes  # type: ignore[return-value]
+
     def _from_elsewhere(self, sample: zenoh.Sample) -> None:
         """A zenoh thread: a sample another process put; its handlers run on their clocks
         in arrival order."""
@@ -177,34 +237,53 @@ class _Hub:
                 return
         for sub in self.matches(key):
             if sub.batch:
-                sub.clock.post_foreign(sender, _deliver_foreign_batch, sub, [(key, data)])
+                sub.clock.post_foreign(sender, _deliver_foreign_batch, sub,
+                                       pack_batch(((key, data),)) if sub.packed else [(key, data)])
             else:
                 sub.clock.post_foreign(sender, _deliver_foreign, sub, key, data)
 
     def _batch_from_elsewhere(self, sample: zenoh.Sample) -> None:
-        """A zenoh thread: a batch another process put (:meth:`Bus.put_batch`). Each of its
-        samples reaches this process's handlers as if it had come alone, in order (control
-        prefixes included); a batch handler gets its samples of the batch in one call, after
-        the per-sample handlers of the batch (or before a control sample in it)."""
+        """A zenoh thread: a batch another process put (:meth:`Bus.put_batch`,
+        :meth:`Bus.put_packed`). Each of its samples reaches this process's handlers as if it
+        had come alone, in order (control prefixes included); a batch handler gets its samples
+        of the batch in one call, after the per-sample handlers of the batch (or before a
+        control sample in it). When only batch handlers match, the batch is not split into
+        samples, and a packed handler that matches every key gets the bytes as they came."""
         key = str(sample.key_expr)
         data = sample.payload.to_bytes()
         att = sample.attachment
         sender = att.to_bytes().decode("utf-8", "replace") if att is not None else ""
         try:
-            items = unpack_batch(data)
+            keys, ends = batch_keys(data)
         except ValueError as exc:
             self._bad_batch(sender, key, data, exc)
             return
         control = self.control
-        routes = list(map(self.cache.get, (k for k, _ in items)))
-        if not control and None not in routes:
-            distinct = set(routes)
-            if all(sub.batch for subs in distinct for sub in subs):  # batch handlers only: whole
-                for sub in sorted({sub for subs in distinct for sub in subs}, key=lambda s: s.index):
-                    mine = items if all(sub in subs for subs in distinct) else \
-                        [item for item, subs in zip(items, routes) if sub in subs]
-                    sub.clock.post_foreign(sender, _deliver_foreign_batch, sub, mine)
-                return
+        prefixes = tuple(p.encode() for p, _ in control)
+        if not control or not any(k.startswith(prefixes) for k in keys):
+            try:
+                routes = self.routes(keys)
+            except Exception:  # a key that is no key expression: sample by sample, below
+                routes = None
+            if routes is not None:
+                distinct = set(routes)
+                subs = {sub for group in distinct for sub in group}
+                if all(sub.batch for sub in subs):  # batch handlers only: whole
+                    items = None
+                    for sub in sorted(subs, key=lambda s: s.index):
+                        whole = all(sub in group for group in distinct)
+                        if sub.packed:
+                            mine: Any = data if whole else select_samples(data, ends, [sub in g for g in routes])
+                        else:
+                            items = unpack_batch(data) if items is None else items  # framed: cannot fail
+                            mine = items if whole else [item for item, g in zip(items, routes) if sub in g]
+                        sub.clock.post_foreign(sender, _deliver_foreign_batch, sub, mine)
+                    return
+        try:
+            items = unpack_batch(data)
+        except ValueError as exc:  # a key that is not UTF-8
+            self._bad_batch(sender, key, data, exc)
+            return
         groups: dict[Subscription, list[tuple[str, bytes]]] = {}
         matches = self.matches
         for k, payload in items:
@@ -240,7 +319,7 @@ class _Hub:
     @staticmethod
     def _post_groups(sender: str, groups: dict[Subscription, list[tuple[str, bytes]]]) -> None:
         for sub, group in groups.items():
-            sub.clock.post_foreign(sender, _deliver_foreign_batch, sub, group)
+            sub.clock.post_foreign(sender, _deliver_foreign_batch, sub, pack_batch(group) if sub.packed else group)
 
     def _bad_batch(self, sender: str, key: str, data: bytes, exc: Exception, item: str | None = None) -> None:
         """A batch (or a sample in one) that cannot be unpacked: a ``bad-sample`` event of
@@ -292,14 +371,16 @@ def _bad_sample(bus: "Bus", who: str, key: str, reason: str, data: bytes) -> Non
                   size=len(data))
 
 
-def _deliver_foreign_batch(sub: Subscription, items: list[tuple[str, bytes]]) -> None:
-    """Samples of a batch from another process, for a batch handler: one it cannot take is a
-    ``bad-sample`` event (for the first of them; ``items``: how many the call had)."""
+def _deliver_foreign_batch(sub: Subscription, items: Any) -> None:
+    """Samples of a batch from another process, for a batch handler (packed or not): one it
+    cannot take is a ``bad-sample`` event (for the first of them; ``items``: how many the call had)."""
     if not sub.active:
         return
     try:
         sub.handler(items)
     except Exception as exc:
+        if sub.packed:
+            items = unpack_batch(items)
         key, data = items[0]
         _bad_sample(sub.bus, sub.who, key, f"{type(exc).__name__}: {exc} ({len(items)} samples)"[:300], data)
 
@@ -377,7 +458,8 @@ class Bus:
         order = next(hub.order)
         for sub in hub.matches(key):
             if sub.batch:
-                sub.clock.post(_deliver_batch, sub, [(key, payload)], order=(order, sub.index))
+                sub.clock.post(_deliver_batch, sub, pack_batch(((key, payload),)) if sub.packed else [(key, payload)],
+                               order=(order, sub.index))
             else:
                 sub.clock.post(_deliver, sub, key, payload, order=(order, sub.index))
         self.put_remote(key, payload)
@@ -397,21 +479,54 @@ class Bus:
         if None in routes:
             routes = [matches if matches is not None else hub.matches(key) for key, matches in zip(keys, routes)]
         distinct = set(routes)
-        if all(sub.batch for subs in distinct for sub in subs):
-            self._put_batch_to_batches(items, routes, distinct)
-        else:
-            self._put_batch_by_sample(items, routes)
         pub = self._publishers.get(self._batch_key) or self._publisher(self._batch_key)
-        if pub.matching_status.matching:
-            if hub.attachment is None:
-                pub.put(pack_batch(items))
-            else:
-                pub.put(pack_batch(items), attachment=hub.attachment)
-            hub.sent = True
+        remote = pub.matching_status.matching
+        data = pack_batch(items) if remote or any(sub.packed for group in distinct for sub in group) else None
+        self._deliver_batch(items, routes, distinct, data, None)
+        if remote:
+            self.put_remote(self._batch_key, data)
         self.published += len(items)
 
+    def put_packed(self, data: bytes) -> None:
+        """:meth:`put_batch` of the samples packed in ``data`` (:func:`pack_batch`'s bytes, made
+        elsewhere: the fleet core renders them in C), without unpacking them for handlers that
+        take them packed (``subscribe_batch(..., packed=True)``): a packed handler matching every
+        key gets ``data`` itself; samples are split out only for per-sample and unpacked batch
+        handlers. Other processes get the same bytes as one zenoh sample. ``ValueError`` (and
+        nothing published) if ``data`` is not such bytes."""
+        if self.closed or not data:
+            return
+        hub = self._hub
+        keys, ends = batch_keys(data)
+        routes = hub.routes(keys)
+        distinct = set(routes)
+        subs = {sub for group in distinct for sub in group}
+        if all(sub.packed for sub in subs):
+            if subs:
+                n = next(hub.order)
+                for sub in sorted(subs, key=lambda s: s.index):
+                    mine = data if all(sub in group for group in distinct) else \
+                        select_samples(data, ends, [sub in group for group in routes])
+                    sub.clock.post(_deliver_batch, sub, mine, order=(n, sub.index))
+        else:
+            self._deliver_batch(unpack_batch(data), routes, distinct, data, ends)
+        pub = self._publishers.get(self._batch_key) or self._publisher(self._batch_key)
+        if pub.matching_status.matching:
+            self.put_remote(self._batch_key, data)
+        self.published += len(keys)
+
+    def _deliver_batch(self, items: Samples, routes: list[tuple[Subscription, ...]],
+                       distinct: set[tuple[Subscription, ...]], data: bytes | None, ends: list[int] | None) -> None:
+        """The local half of a batch: ``data`` its packed bytes (None: nobody here takes them
+        packed), ``ends`` where each sample ends in them (None: not known)."""
+        if all(sub.batch for subs in distinct for sub in subs):
+            self._put_batch_to_batches(items, routes, distinct, data, ends)
+        else:
+            self._put_batch_by_sample(items, routes, data)
+
     def _put_batch_to_batches(self, items: Samples, routes: list[tuple[Subscription, ...]],
-                              distinct: set[tuple[Subscription, ...]]) -> None:
+                              distinct: set[tuple[Subscription, ...]], data: bytes | None,
+                              ends: list[int] | None) -> None:
         """Only batch handlers here (a recorder, a monitor): each gets its samples in one
         post, taken whole when it matches every key of the batch."""
         subs = sorted({sub for group in distinct for sub in group}, key=lambda s: s.index)
@@ -419,13 +534,20 @@ class Bus:
             return
         n = next(self._hub.order)
         for sub in subs:
-            if all(sub in group for group in distinct):
-                mine = list(items)
+            whole = all(sub in group for group in distinct)
+            mine: Any
+            if whole:
+                mine = data if sub.packed else list(items)
+            elif sub.packed and ends is not None and data is not None:
+                mine = select_samples(data, ends, [sub in group for group in routes])
             else:
                 mine = [item for item, group in zip(items, routes) if sub in group]
+                if sub.packed:
+                    mine = pack_batch(mine)
             sub.clock.post(_deliver_batch, sub, mine, order=(n, sub.index))
 
-    def _put_batch_by_sample(self, items: Samples, routes: list[tuple[Subscription, ...]]) -> None:
+    def _put_batch_by_sample(self, items: Samples, routes: list[tuple[Subscription, ...]],
+                             data: bytes | None) -> None:
         """Per-sample handlers among them: each sample in publish order, as from put; a batch
         handler's samples in one post, where its first sample stands."""
         order = self._hub.order
@@ -443,7 +565,10 @@ class Bus:
                 else:
                     sub.clock.post(_deliver, sub, item[0], item[1], order=(n, sub.index))
         for sub, (n, group) in groups.items():  # whole: a wall clock's thread may take it at once
-            sub.clock.post(_deliver_batch, sub, group, order=(n, sub.index))
+            mine: Any = group
+            if sub.packed:
+                mine = data if data is not None and len(group) == len(items) else pack_batch(group)
+            sub.clock.post(_deliver_batch, sub, mine, order=(n, sub.index))
 
     def put_remote(self, key: str, payload: bytes) -> None:
         """Publish to other processes only (what :meth:`put` does after the local delivery;
@@ -524,13 +649,16 @@ class Bus:
         self._subs.append(sub)
         return sub
 
-    def subscribe_batch(self, keyexpr: str, handler: BatchHandler, *, who: str | None = None) -> Subscription:
+    def subscribe_batch(self, keyexpr: str, handler: BatchHandler | PackedHandler, *, who: str | None = None,
+                        packed: bool = False) -> Subscription:
         """``handler(samples)``, ``samples`` a list of ``(key, payload)`` in publish order: all
-        the samples of one :meth:`put_batch` (here or in another process) that match
-        ``keyexpr`` in one call, a sample put alone as a list of one. Same thread and
+        the samples of one :meth:`put_batch` or :meth:`put_packed` (here or in another process)
+        that match ``keyexpr`` in one call, a sample put alone as a list of one. ``packed``:
+        ``samples`` is those samples in :func:`pack_batch`'s bytes instead (a batch put packed
+        and matching only this handler's keys: its bytes as they were put). Same thread and
         ``bad-sample`` rules as :meth:`subscribe`."""
         sub = Subscription(zenoh.KeyExpr(keyexpr), handler, self, next(self._hub.index),
-                           self._hub, who or participant(handler), batch=True)
+                           self._hub, who or participant(handler), batch=True, packed=packed)
         self._hub.add(sub)
         self._subs.append(sub)
         return sub

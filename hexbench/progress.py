@@ -20,9 +20,12 @@ class Progress:
     """Lines and one bar. Use as a context manager; :meth:`say` prints a line, :meth:`update`
     moves the bar (``total`` None: the phase has no known size)."""
 
-    def __init__(self, *, stream: TextIO | None = None, bar: bool | None = None) -> None:
+    def __init__(self, *, stream: TextIO | None = None, bar: bool | None = None,
+                 unit: str = "step") -> None:
+        """``unit``: what the planner's progress counts in (``planners.progress_unit``)."""
         self.stream = stream or sys.stdout
         self.bar = self.stream.isatty() if bar is None else bar
+        self.unit = unit
         self._rich: Any = None
         self._task: Any = None
         self._last_plain = 0.0
@@ -79,7 +82,7 @@ class Progress:
         except (ValueError, KeyError, TypeError):
             return
         if p.planned and self._rich is not None:  # plain output: the planner's own lines say it
-            self.update(f"moves (step {p.step})", p.moves, p.planned)
+            self.update(f"moves ({self.unit} {p.step})", p.moves, p.planned)
 
 
 def phase_sayer(progress: Progress) -> Callable[[str], None]:

@@ -224,7 +224,9 @@ def cmd_run(args: argparse.Namespace, *, with_fleet: bool = True) -> int:
     with contextlib.ExitStack() as stack:  # everything the run opens, closed in reverse order
         stack.enter_context(rarer_young_collections())
         bus = _open_bus(opts, stack)
-        with Progress() as progress:  # a bar on a terminal, cleared before the summary lines
+        from planner_svc.planners import progress_unit
+        # a bar on a terminal (moves n/N in steps, or in rounds), cleared before the summary lines
+        with Progress(unit=progress_unit(opts.planner)) as progress:
             parts = _set_up(opts, args, bus, stack, progress)
             result = parts.service.run(parts.since_ns)
         _end(parts, result)
@@ -306,6 +308,10 @@ def _early_plan(scenario: Scenario, planner: str) -> Plan | None:
 
     if planner == planners.WALTER:
         from planner_svc.planners.walter import Inadmissible, choose
+        from planner_svc.rounds import beyond_the_modules
+        too_many = beyond_the_modules(len(scenario.modules))
+        if too_many:  # whichever program the modules run: the C table's size is the limit
+            raise UsageError(f"planner walter: {too_many}")
         try:  # an inadmissible goal is refused before anything moves
             choose(scenario.goal, scenario.initial, model=False)
         except Inadmissible as exc:

@@ -662,12 +662,12 @@ class CommBoard(Mcu):
             # two repelling sides on together would be a drive pair of this module's own)
             slow = op is not WalterOp.HOLD and bool(pivots) and not walter_pivots_apart(pivots[0][1], g)
             yield Tx(u1, codec.encode_walter_answer(WalterOp.LATE if slow else op))
+            w.passed(op, who)
             if op is WalterOp.HOLD:  # the pin at the end of the side facing the mover
                 yield from self._relay_mirrored(F.JxOpen, int(Joint.of(facing + 1 - self.Yref)))
                 opened = True
             else:
                 pivots.append((op, g))
-                w.passed(op, who)
         # back to the centre when the windows are over: an answer's last byte is still on the
         # wire when the program moves on (the multiplexer would cut it)
         yield Delay(until(6 * window))

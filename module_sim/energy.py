@@ -162,7 +162,11 @@ class EnergyMeter:
         if tr is None:
             return None
         last = None
-        for k, t in enumerate(tr.times):
+        times = tr.times
+        # segments ending before ``start`` cannot count: begin at the one holding it (a walk
+        # from the first change point made a long run's moves quadratic)
+        for k in range(max(0, bisect.bisect_left(times, start_ns) - 1), len(times)):
+            t = times[k]
             if t > end_ns:
                 break
             if tr.active(k):

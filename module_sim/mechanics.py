@@ -168,6 +168,12 @@ class Mechanics:
             self._feed(module, t, joints, magnets)
         self._handle(self.judge.advance(max(t_ns - 1, self.judge.now_ns)))
 
+    def at_rest(self) -> bool:
+        """No body moves and no module tries to: an actuator change that makes no magnet pair
+        and no relay fight starts nothing, whenever it is judged (the fleet core lets such
+        changes wait for its window's end)."""
+        return not self.lagged and self.judge.at_rest()
+
     def bits(self, module: str) -> tuple[list[bool], list[int]] | None:
         """The joints and magnets the body of ``module`` follows now (before faults)."""
         return self._commanded.get(module)

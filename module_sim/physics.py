@@ -411,6 +411,11 @@ class MotionJudge:
     def now_ns(self) -> int:
         return self._now
 
+    def at_rest(self) -> bool:
+        """Nothing moves and nobody tries to (no magnet pair on anywhere): :meth:`on_actuators`
+        takes its short way for any change that makes no pair and no relay fight."""
+        return self.quick and not self._flights and not self._trying
+
     def cell(self, module: str) -> Cell:
         return self._mods[module].cell
 

@@ -192,13 +192,20 @@ class WalterState:
             self.stopped = True
 
     def passed(self, op: WalterOp, position: int) -> None:
-        """The mover at ``position`` asks this module to be its substrate: while it waits in
-        I, that mover passes it (counted once, however often it turns about it), in the
-        direction it rotates."""
-        if self.free or self.done() or op is WalterOp.HOLD or position in self.passed_by:
+        """The mover at ``position`` asks this module something (to be its substrate, or to
+        open the pin that holds it): it touches this module on its way, so while this module
+        waits in I that mover passes it (Figure 10 counts every module passing, not only those
+        that turn about it; once each). Its sense: the pivot it asks for, or for a ``hold``
+        its goal table entry's."""
+        if self.free or self.done() or position in self.passed_by:
             return
         self.passed_by.add(position)
-        if op is WalterOp.PIVOT_CW:
+        if op is WalterOp.HOLD:
+            entry = self.table.get(position)
+            cw = entry is not None and entry.cw
+        else:
+            cw = op is WalterOp.PIVOT_CW
+        if cw:
             self.passed_cw += 1
         else:
             self.passed_ccw += 1

@@ -46,6 +46,16 @@ class RoundsResult:
     busy: list[int]  # per round, the frames heard in its busy slot
 
 
+def beyond_the_modules(n: int) -> str | None:
+    """Why a module cannot hold a Walter problem of ``n`` modules (one line), or None: its goal
+    table has an entry per position but the anchor's, and no more than the comm board's RAM
+    holds (``bus.codec.WALTER_TABLE_CAPACITY``, the size of the C table too)."""
+    if n <= codec.WALTER_MAX_MODULES:
+        return None
+    return (f"{n} modules, but a module holds a problem of at most {codec.WALTER_MAX_MODULES} "
+            f"(its goal table: {codec.WALTER_TABLE_CAPACITY} entries)")
+
+
 def problem_of(choice, model) -> WalterProblem:
     """What the fleet is given for a :class:`planner_svc.planners.walter.Choice`: its round
     model's schedule (every position's goal, direction and delay)."""
@@ -75,6 +85,9 @@ class RoundDriver:
 
     def upload(self, problem: WalterProblem) -> None:
         """Broadcast the problem; returns when the last frame has left the PC."""
+        too_many = beyond_the_modules(problem.n)
+        if too_many:
+            raise ValueError(too_many)
         anchor = to_module_frame(self.scenario, problem.anchor)
         self._send(codec.encode_command(F.Select, SELECT_ALL, 0, 0))
         self._send(codec.encode_command(F.WalterSetup, problem.n, problem.path_len, problem.cost,

@@ -97,8 +97,7 @@ class PlannerService:
         t = (self.bus.clock.now_ns() - self.bus.clock.started_ns) / NS_PER_S
         of = f"/{self._planned}" if self._planned else ""
         # the last line names the outcome only: the caller prints the run's summary once
-        unit = "round" if self.planner_name == planners.WALTER else "step"  # a beat is a round
-        self.say(f"[{t:8.2f} s] {unit} {step:3} moves {moves:3}{of} "
+        self.say(f"[{t:8.2f} s] {planners.progress_unit(self.planner_name)} {step:3} moves {moves:3}{of} "
                  f"goal {filled}/{len(goal)}  {message.split('; ')[0] if done else message}"
                  + ("" if done else self._time_left(moves)))
 
@@ -211,8 +210,11 @@ class PlannerService:
         module reports its goal reached (or the round limit), then the world's verdict. The
         fleet is held to the round model round by round."""
         from .planners.walter import Inadmissible, choose
-        from .rounds import RoundDriver, problem_of
+        from .rounds import RoundDriver, beyond_the_modules, problem_of
 
+        too_many = beyond_the_modules(len(self.scenario.modules))
+        if too_many:  # before bring-up (hexbench run refuses it before the fleet boots)
+            raise PlanError(f"walter: {too_many}")
         view = self.bringup.run(since_ns)
         if self.scenario.profile == "thesis-2009":
             raise BringUpError("thesis-2009 modules have no Walter rounds: use the v2 profile")

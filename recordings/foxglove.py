@@ -21,7 +21,7 @@ from __future__ import annotations
 import json
 import re
 from functools import lru_cache
-from typing import Any, Iterable
+from typing import Any, Iterable, Protocol
 
 from foxglove.messages import (Color, KeyValuePair, LinePrimitive, LinePrimitiveLineType, Log, LogLevel,
                                Point3, Pose as FoxPose, Quaternion, SceneEntity, SceneUpdate, SpherePrimitive,
@@ -97,18 +97,18 @@ class SceneView:
             m = self._module(value.module)
             m.placement = rest(Cell(value.x, value.y), value.orientation)
             m.fixed, m.real, m.moving = bool(value.fixed), value.kind == "real", False
-            return self._update([self._entity(m, t_ns)])
+            return self._one(m, t_ns)
         if isinstance(value, Actuators):
             m = self._module(value.module)
             drawn_before = _drawn(m, value.magnets, value.joints_open)
             m.actuators = value
             if m.placement is None or drawn_before:
                 return None  # LEDs and ports only: not drawn in the scene
-            return self._update([self._entity(m, t_ns)])
+            return self._one(m, t_ns)
         if isinstance(value, WorldEvent) and value.kind == "move-started" and value.module:
             m = self._module(value.module)
             m.moving = True
-            return self._update([self._entity(m, t_ns)]) if m.placement is not None else None
+            return self._one(m, t_ns) if m.placement is not None else None
         if isinstance(value, PlannerState):
             goal = [(int(c[0]), int(c[1])) for c in value.goal]
             if goal == self.goal:
@@ -142,22 +142,14 @@ class SceneView:
     def _update(entities: list[SceneEntity]) -> bytes:
         return SceneUpdate(entities=entities).encode()
 
+    def _one(self, m: _Module, t_ns: int) -> bytes:
+        """The update of one module's entity, as the SDK encodes it: its fields but the
+        timestamp (field 1, encoded first) are made once per distinct look of the module."""
+        entity = timestamp_field(t_ns) + _entity_rest(_look(m))
+        return b"\x12" + _varint(len(entity)) + entity
+
     def _entity(self, m: _Module, t_ns: int) -> SceneEntity:
-        p = m.placement
-        assert p is not None
-        body = MOVING if m.moving else FIXED if m.fixed else module_colour(m.name)
-        act = m.actuators
-        magnets = tuple(act.magnets[:6]) if act is not None else ()
-        opened = tuple(bool(o) for o in act.joints_open[:6]) if act is not None else ()
-        label = m.name + (" fixed" if m.fixed else "") + (" real" if m.real else "") + (" moving" if m.moving else "")
-        prism, outline, text = _body(p, body, label)
-        return SceneEntity(
-            timestamp=timestamp(t_ns), frame_id=FRAME_ID, id=m.name,
-            metadata=[KeyValuePair(key="cell", value=f"{p.cell.x},{p.cell.y}"),
-                      KeyValuePair(key="orientation", value=str(p.orientation)),
-                      KeyValuePair(key="kind", value="real" if m.real else "virtual"),
-                      KeyValuePair(key="fixed", value=str(m.fixed).lower())],
-            triangles=[prism], lines=[outline, _magnets(p, magnets)], spheres=_joints(p, opened), texts=[text])
+        return _entity_of(_look(m), t_ns)
 
     def _goal(self, t_ns: int) -> SceneEntity:
         loops = [LinePrimitive(type=LinePrimitiveLineType.LineLoop, pose=_IDENTITY, thickness=0.03,
@@ -165,6 +157,45 @@ class SceneView:
                                color=_colour(GOAL)) for c in self.goal]
         return SceneEntity(timestamp=timestamp(t_ns), frame_id=FRAME_ID, id="goal", lines=loops,
                            metadata=[KeyValuePair(key="cells", value=" ".join(f"{x},{y}" for x, y in self.goal))])
+
+
+#: What a module's entity shows: name, placement, fixed, real, moving, magnets, joints opened.
+Look = tuple[str, Placement, bool, bool, bool, tuple[int, ...], tuple[bool, ...]]
+
+
+def _look(m: _Module) -> Look:
+    act = m.actuators
+    assert m.placement is not None
+    return (m.name, m.placement, m.fixed, m.real, m.moving, tuple(act.magnets[:6]) if act is not None else (),
+            tuple(bool(o) for o in act.joints_open[:6]) if act is not None else ())
+
+
+def _entity_of(look: Look, t_ns: int) -> SceneEntity:
+    name, p, fixed, real, moving, magnets, opened = look
+    body = MOVING if moving else FIXED if fixed else module_colour(name)
+    label = name + (" fixed" if fixed else "") + (" real" if real else "") + (" moving" if moving else "")
+    prism, outline, text = _body(p, body, label)
+    return SceneEntity(
+        timestamp=timestamp(t_ns), frame_id=FRAME_ID, id=name,
+        metadata=[KeyValuePair(key="cell", value=f"{p.cell.x},{p.cell.y}"),
+                  KeyValuePair(key="orientation", value=str(p.orientation)),
+                  KeyValuePair(key="kind", value="real" if real else "virtual"),
+                  KeyValuePair(key="fixed", value=str(fixed).lower())],
+        triangles=[prism], lines=[outline, _magnets(p, magnets)], spheres=_joints(p, opened), texts=[text])
+
+
+@lru_cache(maxsize=16384)
+def _entity_rest(look: Look) -> bytes:
+    """An entity's encoding after its timestamp: protobuf writes fields in number order, the
+    timestamp is field 1, so timestamp + this is the SDK's encoding of the whole entity."""
+    one = timestamp_field(1)
+    encoded = SceneUpdate(entities=[_entity_of(look, 1)]).encode()
+    k = 1
+    while encoded[k] & 0x80:  # the entity's length (a varint) after the field tag
+        k += 1
+    entity = encoded[k + 1:]
+    assert entity.startswith(one)
+    return entity[len(one):]
 
 
 # A module's parts depend on few things and repeat all run long (a resting module's magnets
@@ -216,12 +247,23 @@ def _joints(p: Placement, opened: tuple[bool, ...]) -> list[SpherePrimitive]:
             for j, o in zip(p.joint_points(JOINT_INSET), states) for s in [0.14 if o else 0.08]]
 
 
+class LineStore(Protocol):
+    """Lines kept elsewhere (the recorder's C batch path, which makes lines too): a line made
+    there is the line of its frame here, and a line made here is given there."""
+
+    def line(self, head: bytes, kind: bytes) -> bytes | None: ...
+
+    def remember(self, head: bytes, kind: bytes, rest: bytes) -> None: ...
+
+
 class FrameLog:
     """Frames in, encoded ``foxglove.Log`` messages out (one line per frame, as the replay's)."""
 
     def __init__(self) -> None:
         self.lines = FrameLines()
         self._seen: dict[tuple[bytes, str | None], bytes] = {}  # -> the encoded Log without its timestamp
+        #: where lines are shared (by an envelope's head as Envelope.to_json writes it, and kind)
+        self.shared: LineStore | None = None
 
     def log(self, env: Envelope, t_ns: int) -> bytes:
         level = LogLevel.Warning if env.kind == Kind.NOISE.value else LogLevel.Info
@@ -257,13 +299,30 @@ class FrameLog:
         """The encoded Log of a frame without its timestamp, remembered under ``key``
         (``ValueError``/``KeyError``/``TypeError`` if the payload is no envelope)."""
         env = Envelope.from_json(payload)
-        rest = Log(level=LogLevel.Warning if env.kind == Kind.NOISE.value else LogLevel.Info,
-                   message=self.lines.line(env), name=f"{env.link}/{env.src}").encode()
+        shared = self.shared
+        if shared is not None:
+            head, kind = _head(env), str(env.kind).encode()
+            rest = shared.line(head, kind)
+            if rest is None:
+                rest = self._encode(env)
+                shared.remember(head, kind, rest)
+        else:
+            rest = self._encode(env)
         if key is not None:
             if len(self._seen) > 65536:  # a long run of ever-new frames: start over
                 self._seen.clear()
             self._seen[key] = rest
         return rest
+
+    def _encode(self, env: Envelope) -> bytes:
+        return Log(level=LogLevel.Warning if env.kind == Kind.NOISE.value else LogLevel.Info,
+                   message=self.lines.line(env), name=f"{env.link}/{env.src}").encode()
+
+
+def _head(env: Envelope) -> bytes:
+    """An envelope's bytes before ``,"sim_time_ns"`` as :meth:`Envelope.to_json` writes them."""
+    return (f'{{"link":{json.dumps(env.link)},"src":{json.dumps(env.src)},"dst":{json.dumps(env.dst)},'
+            f'"raw":"{env.raw.hex()}"').encode()
 
 
 _KIND = re.compile(rb'"kind":"([a-z0-9_-]*)"')

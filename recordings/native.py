@@ -1,5 +1,5 @@
-"""The recorder's compiled batch path for frames and actuator records (``native/framebatch.c``, loaded
-with ctypes).
+"""The recorder's compiled batch path for frames, actuator records, events and light
+(``native/framebatch.c``, loaded with ctypes).
 
 A frame costs the pure-Python recorder a few microseconds (its fields read by a regex, two
 records packed, indexed and counted, its Foxglove line stamped); a fleet puts hundreds of
@@ -7,10 +7,19 @@ thousands a second. :class:`FrameBatch` hands a whole batch of frame envelopes t
 writes the records :meth:`recordings.recorder.Recorder.write` would (the same bytes, sequence
 numbers, chunk offsets) and stops whenever Python must act: a sample that is not an envelope
 as the bus writes it, a channel or a Foxglove line not seen yet, a full chunk. It writes an
-actuator record too once Python wrote the same bytes but the time on that channel and the
-coils are the channel's last (:meth:`FrameBatch.record_seen`): what the careful path would
+actuator record too when its head (``{"module":"<its module>","sim_time_ns":``) is one Python
+wrote on that channel, its tail (the bytes after its time) one Python wrote on any channel,
+and its coils the channel's last (:meth:`FrameBatch.record_seen`): what the careful path would
 write, count by topic and derive nothing from. :func:`index_records` writes a chunk's
 MessageIndex records.
+
+A batch in ``bus.transport.pack_batch``'s bytes (:meth:`recordings.recorder.Recorder.write_packed`)
+goes to C whole (``fb_packed``): C keeps the recorder's keys (how each key's samples are
+written, on which channel), writes frames, actuator records, events and light, makes the Log
+line of a frame whose describe text it holds (:meth:`FrameBatch.describe`), and counts by key
+and event kind until Python folds the counts into its tally. The Log lines live in C for both
+paths and for Python's own (``FrameLog.shared``), so a line once made is its frame's line
+everywhere.
 
 The library is built with ``make -C recordings/native`` when missing or older than its source
 (only a C compiler is needed). Without it — no compiler, or ``HEXBENCH_NATIVE=0`` — :data:`LIB`
@@ -30,8 +39,11 @@ from typing import Any
 
 HERE = Path(__file__).resolve().parent / "native"
 LIB_PATH = HERE / "build" / "libframebatch.so"
-#: fb_frames's answers (framebatch.c)
-DONE, NOT_FRAME, NEW_CHANNEL, NEW_LOG_CHANNEL, REST_MISS, CHUNK_FULL, OUT_FULL, GROW_SEQS = range(8)
+#: fb_frames's and fb_packed's answers (framebatch.c)
+(DONE, NOT_FRAME, NEW_CHANNEL, NEW_LOG_CHANNEL, REST_MISS, CHUNK_FULL, OUT_FULL, GROW_SEQS, NEW_KEY, PYTHON,
+ BAD_BATCH, COILS) = range(12)
+#: how fb_packed writes the samples of a key (framebatch.c FB_KEY_*)
+KEY_PYTHON, KEY_FRAME, KEY_RECORD, KEY_FAST, KEY_EVENT = range(5)
 _p = ctypes.c_void_p
 _i32, _i64 = ctypes.c_int32, ctypes.c_int64
 
@@ -47,7 +59,9 @@ class _Batch(ctypes.Structure):
                 ("ix_len", _i64), ("frames", _i64), ("tmin", _i64), ("tmax", _i64), ("last_sim", _i64),
                 ("noise", _p), ("item", _i64), ("phase", _i32), ("no_log", _i32),
                 ("head_at", _i64), ("head_len", _i64), ("kind_at", _i64), ("kind_len", _i64),
-                ("log_time", _i64), ("recs", _p), ("records", _i64)]
+                ("log_time", _i64), ("recs", _p), ("records", _i64),
+                ("packed", ctypes.c_char_p), ("packed_len", _i64), ("pos", _i64), ("key_id", _i64), ("samples", _i64),
+                ("keys", _p), ("kinds", _p), ("events", _i64)]
 
 
 def _build() -> None:
@@ -85,6 +99,22 @@ def _load() -> Any:
     lib.fb_records_free.argtypes = [_p]
     lib.fb_record_seen.argtypes = [_p, _i32, ctypes.c_char_p, _i64, _i32]
     lib.fb_record_seen.restype = ctypes.c_int
+    lib.fb_table_get.argtypes = [_p, ctypes.c_char_p, _i32, ctypes.c_char_p, _i32, _p, _i64]
+    lib.fb_table_get.restype = _i64
+    lib.fb_keys_new.restype = _p
+    lib.fb_keys_free.argtypes = [_p]
+    lib.fb_key_put.argtypes = [_p, ctypes.c_char_p, _i32, _i32, _i32]
+    lib.fb_key_put.restype = _i64
+    lib.fb_key_set_cid.argtypes = [_p, _i64, _i32]
+    lib.fb_keys_new_file.argtypes = [_p]
+    lib.fb_key_counts.argtypes = [_p, _p, _p, _p]
+    lib.fb_key_counts.restype = _i64
+    lib.fb_kind_counts.argtypes = [_p, _p, _i64]
+    lib.fb_kind_counts.restype = _i64
+    lib.fb_describe_put.argtypes = [_p, ctypes.c_char_p, _i64, ctypes.c_char_p, _i32]
+    lib.fb_describe_put.restype = ctypes.c_int
+    lib.fb_packed.argtypes = [ctypes.POINTER(_Batch)]
+    lib.fb_packed.restype = ctypes.c_int
     return lib
 
 
@@ -125,9 +155,11 @@ def index_records(cids: array, times: array, offsets: array) -> tuple[bytes, lis
 
 
 class FrameBatch:
-    """The C side of one recorder's batches: its table of Foxglove lines, its buffers."""
+    """The C side of one recorder's batches: its table of Foxglove lines (and of the describe
+    texts they are made from), its records, its keys, its buffers."""
 
     OUT_BYTES = 1 << 20
+    PACKED_INDEX = 1 << 14  # index entries of a packed batch's records between two commits
 
     def __init__(self) -> None:
         native = lib()
@@ -135,26 +167,85 @@ class FrameBatch:
         self.lib = native
         self.rests = native.fb_table_new()
         self.records = native.fb_records_new()
-        if not self.rests or not self.records:
+        self.keys = native.fb_keys_new()
+        self.kinds = native.fb_table_new()
+        if not self.rests or not self.records or not self.keys or not self.kinds:
             raise MemoryError("fb_table_new")
         self.state = _Batch()
         self.state.recs = self.records
+        self.state.keys = self.keys
+        self.state.kinds = self.kinds
         self.out = ctypes.create_string_buffer(self.OUT_BYTES)
         self.noise = ctypes.create_string_buffer(0)
         self.ix: tuple[array, array, array] = (array("i"), array("q"), array("q"))
+        self.nkeys = 0
+        self._line = ctypes.create_string_buffer(1024)
 
     def __del__(self) -> None:
-        rests, self.rests = getattr(self, "rests", None), None
-        if rests:
-            self.lib.fb_table_free(rests)
-        records, self.records = getattr(self, "records", None), None
-        if records:
-            self.lib.fb_records_free(records)
+        for name, free in (("rests", "fb_table_free"), ("records", "fb_records_free"), ("keys", "fb_keys_free"),
+                           ("kinds", "fb_table_free")):
+            handle = getattr(self, name, None)
+            setattr(self, name, None)
+            if handle:
+                getattr(self.lib, free)(handle)
 
     def remember(self, head: bytes, kind: bytes, rest: bytes) -> None:
         """A Foxglove line of (head, kind), for the next frames that have them."""
         if self.lib.fb_table_put(self.rests, head, len(head), kind, len(kind), rest, len(rest)) != 0:
             raise MemoryError("fb_table_put")
+
+    def line(self, head: bytes, kind: bytes) -> bytes | None:
+        """The Foxglove line of (head, kind) remembered or made here, or None."""
+        n = self.lib.fb_table_get(self.rests, head, len(head), kind, len(kind), self._line, len(self._line))
+        if n > len(self._line):
+            self._line = ctypes.create_string_buffer(n)
+            n = self.lib.fb_table_get(self.rests, head, len(head), kind, len(kind), self._line, n)
+        return None if n < 0 else self._line.raw[:n]
+
+    def describe(self, envelope: bytes, text: bytes) -> None:
+        """``text`` describes every frame with this envelope's link, kind, raw and view (the
+        envelope exactly as ``Envelope.to_json`` writes it): fb_packed makes their lines."""
+        if self.lib.fb_describe_put(self.rests, envelope, len(envelope), text, len(text)) < 0:
+            raise MemoryError("fb_describe_put")
+
+    def key(self, key: bytes, how: int, cid: int) -> int:
+        """Enter a key (``how``: KEY_*; ``cid``: its channel, 0 none yet); its number."""
+        kid = self.lib.fb_key_put(self.keys, key, len(key), how, cid)
+        if kid < 0:
+            raise MemoryError("fb_key_put")
+        self.nkeys = kid + 1
+        return kid
+
+    def key_channel(self, kid: int, cid: int) -> None:
+        self.lib.fb_key_set_cid(self.keys, kid, cid)
+
+    def key_counts(self) -> list[tuple[int, int, int]]:
+        """``(key number, samples, noise frames)`` written in C since the last call."""
+        n = self.nkeys
+        if not n:
+            return []
+        ids, counts, noise = array("q", bytes(8 * n)), array("q", bytes(8 * n)), array("q", bytes(8 * n))
+        m = self.lib.fb_key_counts(self.keys, _address(ids), _address(counts), _address(noise))
+        return list(zip(ids[:m], counts[:m], noise[:m]))
+
+    def kind_counts(self) -> dict[str, int]:
+        """Events written in C since the last call, by kind."""
+        size = 4096
+        while True:
+            out = ctypes.create_string_buffer(size)
+            n = self.lib.fb_kind_counts(self.kinds, out, size)
+            if n >= 0:
+                break
+            size *= 4
+        raw, got, i = out.raw[:n], {}, 0
+        while i < n:
+            j = raw.index(0, i)
+            got[raw[i:j].decode()] = int.from_bytes(raw[j + 1:j + 9], "little")
+            i = j + 9
+        return got
+
+    def run_packed(self) -> int:
+        return self.lib.fb_packed(ctypes.byref(self.state))
 
     def record_seen(self, cid: int, payload: bytes, known: bool) -> None:
         """Python wrote record ``payload`` on channel ``cid``: its coils are the channel's now
@@ -170,6 +261,7 @@ class FrameBatch:
             raise MemoryError("fb_records_new")
         self.lib.fb_records_free(self.records)
         self.records = self.state.recs = fresh
+        self.lib.fb_keys_new_file(self.keys)
 
     def forget_coils(self, cid: int) -> None:
         """The channel's next record is Python's (its scene state is not known here)."""

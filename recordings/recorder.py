@@ -19,8 +19,11 @@ is visible"; rosbag2/MCAP as the model).
 * Fast: payloads are written exactly as they came from the bus (never re-serialised), frames
   and schemaless keys without being decoded (see :class:`_Route`), into large chunks by
   :class:`recordings.mcap_writer.FastMcapWriter`; ``strict=True`` decodes every payload.
-  :meth:`Recorder.write_batch` (what :meth:`Recorder.attach` subscribes with, to get a
-  ``Bus.put_batch`` whole) writes many samples under one lock: the records ``write`` would.
+  :meth:`Recorder.write_batch` writes many samples under one lock: the records ``write``
+  would; :meth:`Recorder.write_packed` the same from a batch in ``pack_batch``'s bytes, in C
+  for every sample C can take (what :meth:`Recorder.attach` subscribes with, so a batch from
+  ``Bus.put_batch``, ``Bus.put_packed`` or another process is written without a Python object
+  per sample that nothing acts on).
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ from __future__ import annotations
 import ctypes
 import json
 import re
+import struct
 import threading
 import time
 from array import array
@@ -37,13 +41,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal, Mapping, Sequence
 
+from bus.envelope import Envelope
 from bus.keys import Keys
 from bus.messages import RunMeta
+from bus.transport import unpack_batch
 
 from . import meta as meta_mod
 from . import native
 from .foxglove import FoxgloveView, timestamp_field
-from .schemas import FRAME, IR_LIGHT, LOG_TOPIC, RECORDER_ERROR_TOPIC, SCENE_TOPIC, UNTYPED, kind_of
+from .lines import describe
+from .schemas import BUS_EVENT, FRAME, IR_LIGHT, LOG_TOPIC, RECORDER_ERROR_TOPIC, SCENE_TOPIC, UNTYPED, kind_of
 from .sink import CHUNK_SIZE, McapSink
 from .stats import Tally, kind_field
 
@@ -60,6 +67,8 @@ _RECORDS_SEEN = 1 << 16  # distinct records kept decoded (a bound: cleared when 
 #: The records kept decoded, one cache for the process (an object depends on its bytes alone):
 #: one per recorder kept 40 at 40 fleets (10 000 modules recorded: peak RSS 4.3 GB, 1.9 GB with one).
 _RECORDS: dict[tuple[str, bytes, bytes], dict[str, Any]] = {}
+#: An actuator record's tail (the bytes after its time) decoded, for every module (write_packed)
+_TAILS: dict[bytes, dict[str, Any]] = {}
 #: An envelope as :meth:`bus.envelope.Envelope.to_json` writes it: its times and kind in one match
 #: (the fields before it, link, src, dst and raw, are the rest of the required ones).
 _ENVELOPE = re.compile(rb',"sim_time_ns":(\d+),"wall_time_ns":(\d+),"seq":\d+,"kind":"([^"\\]*)"')
@@ -73,6 +82,8 @@ _ENVELOPE_AT_START = re.compile(rb'(\{"link":"[^"\\]*","src":"[^"\\]*","dst":"[^
                                 rb',"sim_time_ns":(\d+),"wall_time_ns":(\d+),"seq":\d+,"kind":"([^"\\]*)"')
 _KIND_NAMES: dict[bytes, str] = {}  # a frame kind's bytes -> its name
 _ACTUATORS = "world/actuators/"  # the records the C batch path writes too, once seen here
+_PLAIN = re.compile(r"[ !#-.0-\[\]-~]+")  # printable ASCII but quote, backslash and slash: JSON as it is
+_BATCH_ITEM = struct.Struct("<HI")  # a packed sample's key and payload lengths (bus.transport.pack_batch)
 
 
 def _kind_name(raw: bytes) -> str:
@@ -203,11 +214,19 @@ class Recorder:
         self._routes: dict[str, _Route] = {}  # key -> how its samples are recorded
         self._cids: dict[str, int] = {}  # topic -> channel id in the open part
         self._frame_cids = _NoChannel()  # key of a frame -> its channel id in the open part (native path)
-        self._native: native.FrameBatch | None = None  # the compiled batch path, once used
+        # the compiled batch path (from the start: the Log lines it makes are FrameLog's too)
+        self._native: native.FrameBatch | None = native.FrameBatch() if native.lib() is not None else None
+        if self._native is not None and self._fox is not None:
+            self._fox.log.shared = self._native
+        self._key_topics: list[str] = []  # by key number in the C key table (write_packed)
+        self._key_events: list[bool] = []  # whether the key's samples are events (counted by kind)
+        self._topic_keys: dict[str, list[int]] = {}  # topic -> its keys' numbers
         # its frames counted by key, not yet in the open part's tally (see _fold)
         self._pending: Counter[str] = Counter()
         self._pending_noise: Counter[str] = Counter()
         self._pending_frames = 0
+        self._packed_pending = False  # counts wait in C (write_packed)
+        self._native_live = False  # C holds the open chunk's end (write_packed; McapSink.held)
         self.paths: list[Path] = []
         self._required: dict[str, tuple[str, ...]] = {}
         self._last_sim_ns = 0
@@ -227,7 +246,9 @@ class Recorder:
         """Subscribe to everything of ``bus``'s fleet (a :class:`bus.transport.Bus`).
 
         Handlers run on the bus clock's thread, so a virtual clock waits for the recorder
-        like for any participant: when a virtual run settles, everything is written.
+        like for any participant: when a virtual run settles, everything is written. With the
+        compiled path, batches come packed (:meth:`write_packed`), as they travel between
+        processes and as the fleet core may put them (``Bus.put_packed``).
         """
         if bus.keys.root != self.keys.root:
             raise ValueError(f"recorder is for {self.keys.root}, bus is {bus.keys.root}")
@@ -237,7 +258,10 @@ class Recorder:
                 self._origin = self.start_ns if self.time_source == "sim" else 0
                 self.meta["log_time"] = self.time_source
                 self._sink.add_metadata(self.meta)
-        bus.subscribe_batch(self.keys.all, self.on_samples)
+        if self._native is not None:  # batches as they travel, written in C (write_packed)
+            bus.subscribe_batch(self.keys.all, self.on_packed, packed=True)
+        else:
+            bus.subscribe_batch(self.keys.all, self.on_samples)
 
     def on_sample(self, key: str, payload: bytes) -> None:
         """Bus handler: record one sample received now."""
@@ -246,6 +270,35 @@ class Recorder:
     def on_samples(self, samples: Sequence[tuple[str, bytes]]) -> None:
         """Bus batch handler (``Bus.subscribe_batch``): record samples received now."""
         self.write_batch(samples)
+
+    def on_packed(self, data: bytes) -> None:
+        """Packed bus batch handler (``Bus.subscribe_batch(..., packed=True)``): record the
+        samples of a batch in ``pack_batch``'s bytes, received now."""
+        self.write_packed(data)
+
+    def write_packed(self, data: bytes, *, receive_wall_ns: int | None = None) -> None:
+        """Record the samples of a batch in :func:`bus.transport.pack_batch`'s bytes (a packed
+        batch handler: ``Bus.subscribe_batch(..., packed=True)``): what :meth:`write_batch`
+        writes of them, the same file byte for byte, written in C (framebatch.c ``fb_packed``)
+        for every sample it can take: frames and their Log lines, actuator records that change
+        no coil, events, light. Python writes the rest in its place (a first record or a coil
+        change, for the scene; anything unusual, by the careful path). ``ValueError`` if
+        ``data`` is no such bytes; a rotating or strict recorder, or one without the compiled
+        path, writes the unpacked samples."""
+        wall = time.time_ns() if receive_wall_ns is None else receive_wall_ns
+        fb = self._native
+        if fb is not None and not self.strict and not self.rotating:
+            with self._lock:
+                if self._closed:
+                    return
+                st = fb.state
+                st.packed, st.packed_len, st.pos, st.samples = data, len(data), 0, 0
+                try:
+                    if self._write_packed_native(fb, data, wall):
+                        return
+                finally:
+                    st.packed = None
+        self.write_batch(unpack_batch(data), receive_wall_ns=wall)
 
     # -- writing ----------------------------------------------------------------------------
     def write(self, key: str, payload: bytes, *, receive_wall_ns: int | None = None) -> None:
@@ -273,8 +326,6 @@ class Recorder:
                 for key, payload in samples:
                     self.write(key, payload, receive_wall_ns=wall)
             return
-        if self._native is None and native.lib() is not None:
-            self._native = native.FrameBatch()
         if self._native is not None:
             self._write_batch_native(samples, wall)
             return
@@ -447,6 +498,172 @@ class Recorder:
             if st.frames:
                 self._count_frames(keys, slow, fb.noise.raw[:n], st.tmin, st.tmax)
 
+    def _write_packed_native(self, fb: native.FrameBatch, data: bytes, wall: int) -> bool:
+        """write_packed's loop (under the lock): C writes, Python does what C stops for; False
+        if C takes none of it (bytes that do not frame, a key that is not ASCII). The end of
+        the open chunk stays in C between batches (``McapSink.held`` gives it to the file
+        before anything else is written there)."""
+        st = fb.state
+        log = self._fox.log if self._fox is not None else None
+        st.by_sim, st.origin, st.wall = self.time_source != "wall", self._origin, wall
+        st.frames, st.last_sim, st.phase, st.no_log = 0, self._last_sim_ns, 0, 0
+        if not self._native_live:
+            self._native_load()
+
+        def sample() -> tuple[str, bytes, int]:  # the sample C stopped at: key, payload, where the next starts
+            klen, plen = _BATCH_ITEM.unpack_from(data, st.pos)
+            start = st.pos + 6 + klen
+            return data[st.pos + 6:start].decode(), data[start:start + plen], start + plen
+
+        while True:
+            code = fb.run_packed()
+            if code == native.DONE:
+                break
+            if code == native.BAD_BATCH:
+                return False
+            if code == native.NEW_KEY:
+                self._new_key(fb, sample()[0])
+            elif code == native.REST_MISS:  # a Foxglove line C cannot make: FrameLog makes it
+                assert log is not None
+                head = data[st.head_at:st.head_at + st.head_len]
+                kind_b = data[st.kind_at:st.kind_at + st.kind_len]
+                kind = _KIND_NAMES.get(kind_b) or _kind_name(kind_b)
+                payload = sample()[1]
+                rest = log.seen.get((head, kind))
+                if rest is None:
+                    try:
+                        rest = log.rest(payload, (head, kind))
+                    except (ValueError, KeyError, TypeError):  # no envelope after all: no line
+                        st.no_log = 1
+                        continue
+                    env = Envelope.from_json(payload)
+                    if env.to_json() == payload:  # its describe text makes the lines of its likes
+                        fb.describe(payload, describe(env).encode())
+                fb.remember(head, kind_b, rest)
+            elif code == native.OUT_FULL:  # C's records into the file (and a larger buffer for a large one)
+                empty = st.out_len == 0
+                self._sink.release_held()
+                if empty:
+                    fb.grow_out(2 * len(sample()[1]) + 4096)
+            elif code == native.CHUNK_FULL:
+                self._sink.writer.close_chunk()
+            elif code == native.NEW_LOG_CHANNEL:
+                self._cids[LOG_TOPIC] = self._sink.channel(LOG_TOPIC)
+            elif code == native.NEW_CHANNEL:
+                topic = self._key_topics[st.key_id]
+                cid = self._cids.get(topic)
+                if cid is None:
+                    cid = self._cids[topic] = self._sink.channel(topic)
+                for kid in self._topic_keys[topic]:
+                    fb.key_channel(kid, cid)
+            elif code == native.COILS:  # a coil change C wrote (a known record): the scene's
+                writer = self._sink.writer
+                if writer.chunk_state[0] > writer.chunk_size:  # closed after the record, as write_to does
+                    writer.close_chunk()
+                at, st.pos = st.pos, st.item
+                key, payload, _ = sample()
+                st.pos = at
+                self._coil_change(key, payload, wall)
+            elif code == native.PYTHON:
+                key, payload, st.pos = sample()
+                route = self._routes.get(key)
+                if route is None:
+                    route = self._routes[key] = _Route.of(self.keys.relative(key))
+                self._last_sim_ns = st.last_sim
+                self._write_one(route, key, payload, wall)
+                st.last_sim = self._last_sim_ns
+            else:
+                raise RuntimeError(f"framebatch.c answered {code}")
+            if not self._native_live:  # Python wrote: the file's state into C's
+                self._native_load()
+        self._last_sim_ns = st.last_sim
+        if st.frames:
+            self._sink.dirty = True
+            self._pending_frames += st.frames
+            self._packed_pending = True
+            if self._part_first_ns is None:
+                self._part_first_ns = st.tmin
+            self._part.span(st.tmin, st.tmax)
+        return True
+
+    def _native_load(self) -> None:
+        """The open file's state into C's (write_packed), which holds the chunk's end from now
+        until something else is written there."""
+        fb = self._native
+        assert fb is not None
+        st, sink = fb.state, self._sink
+        st.chunk_bytes, st.chunk_messages, st.chunk_start, st.chunk_end = sink.writer.chunk_state
+        st.seqs, st.nseqs = sink.sequences.buffer_info()
+        st.log_cid = -1 if self._fox is None else self._cids.get(LOG_TOPIC, 0)
+        st.rests, st.limit = fb.rests, self.chunk_size
+        if len(fb.ix[0]) < fb.PACKED_INDEX:
+            fb.prepare(fb.PACKED_INDEX // 2)
+        st.ix_cid, st.ix_time, st.ix_off = (a.buffer_info()[0] for a in fb.ix)
+        st.ix_cap = len(fb.ix[0])
+        st.out, st.out_cap, st.out_len, st.ix_len = ctypes.addressof(fb.out), len(fb.out), 0, 0
+        self._native_live = True
+        sink.held = self._native_release
+
+    def _native_release(self) -> None:
+        """C's records into the file (``McapSink.held``: before anything else is written there)."""
+        fb = self._native
+        assert fb is not None
+        self._native_live = False
+        st = fb.state
+        k = st.ix_len
+        if not k:
+            return
+        ix_cid, ix_time, ix_off = fb.ix
+        self._sink.writer.add_records(ctypes.string_at(fb.out, st.out_len), ix_cid[:k], ix_time[:k], ix_off[:k],
+                                      (st.chunk_bytes, st.chunk_messages, st.chunk_start, st.chunk_end))
+        self._sink.dirty = True
+        st.out_len = st.ix_len = 0
+
+    def _coil_change(self, key: str, payload: bytes, wall: int) -> None:
+        """An actuator record C wrote whose coils are not its channel's (its head and tail are
+        known: a valid record of its key's module): what the careful path does after writing
+        it, the scene's update and the channel's coils (under the lock)."""
+        topic = self._routes[key].topic
+        m = _SIM_TIME.search(payload)  # the head's (C checked: the only one)
+        assert m is not None
+        sim = int(m.group(1))
+        tail = payload[m.end(1):]
+        template = _TAILS.get(tail)
+        if template is None:
+            if len(_TAILS) >= _RECORDS_SEEN:
+                _TAILS.clear()
+            template = _TAILS[tail] = _decode('{"module":"","sim_time_ns":0' + tail.decode())
+        obj = dict(template)
+        obj["module"], obj["sim_time_ns"] = topic[len(_ACTUATORS):], sim
+        log_time = wall if self.time_source == "wall" else self._origin + sim
+        if self._fox is not None:
+            update = self._fox.scene.feed_record(topic, obj, log_time)
+            if update is not None:
+                self._derived(SCENE_TOPIC, update, log_time)
+        self._record_seen(key, topic, payload, obj, sim)
+
+    def _new_key(self, fb: native.FrameBatch, key: str) -> None:
+        """Enter a key in C's key table: how its samples are written there, on which channel."""
+        route = self._routes.get(key)
+        if route is None:
+            route = self._routes[key] = _Route.of(self.keys.relative(key))
+        topic = route.topic
+        module = topic[len(_ACTUATORS):] if topic.startswith(_ACTUATORS) else ""
+        if route.frame:
+            how = native.KEY_FRAME
+        elif module and _PLAIN.fullmatch(module):
+            how = native.KEY_RECORD
+        elif route.fast:
+            how = native.KEY_FAST
+        elif kind_of(topic) is BUS_EVENT:
+            how = native.KEY_EVENT
+        else:
+            how = native.KEY_PYTHON
+        kid = fb.key(key.encode(), how, self._cids.get(topic, 0))
+        self._key_topics.append(topic)
+        self._key_events.append(how == native.KEY_EVENT)
+        self._topic_keys.setdefault(topic, []).append(kid)
+
     def _count_frames(self, keys: Sequence[str], slow: list[int], noise: bytes, first: int, last: int) -> None:
         """Count the frames of a native batch (every key but those of ``slow``): by key now,
         by topic and link when the tally is read (:meth:`_fold`)."""
@@ -467,6 +684,23 @@ class Recorder:
         """The frames counted by key into the open part's tally (under the lock)."""
         if not self._pending_frames:
             return
+        if self._packed_pending:  # what fb_packed wrote, counted by key and event kind in C
+            self._packed_pending = False
+            fb = self._native
+            assert fb is not None
+            counts: Counter[str] = Counter()
+            events: Counter[str] = Counter()
+            noisy: Counter[str] = Counter()
+            for kid, k, noise_k in fb.key_counts():
+                topic = self._key_topics[kid]
+                (events if self._key_events[kid] else counts)[topic] += k
+                if noise_k:
+                    noisy[topic] += noise_k
+                self._pending_frames -= k
+            self._part.add_counts(counts, noisy)
+            self._part.add_events(events, fb.kind_counts())
+            if not self._pending_frames:
+                return
         by_topic: Counter[str] = Counter()
         for key, k in self._pending.items():
             if k:
@@ -558,7 +792,11 @@ class Recorder:
                     or act.joints_open != obj.get("joints_open")):
                 fb.forget_coils(cid)
                 return
-        fb.record_seen(cid, payload, sim is not None and "wall_time_ns" not in obj)
+        # its head as the fleet writes it: then its tail means the same after any module's head
+        known = (sim is not None and "wall_time_ns" not in obj and isinstance(module, str)
+                 and _PLAIN.fullmatch(module) is not None
+                 and payload.startswith(b'{"module":"%s","sim_time_ns":' % module.encode()))
+        fb.record_seen(cid, payload, known)
         self._frame_cids[key] = cid
 
     def _decode_record(self, topic: str, payload: bytes) -> Any:
@@ -649,6 +887,7 @@ class Recorder:
         self._part_first_ns = None
         self._cids = {}  # channel ids are per file
         self._frame_cids = _NoChannel()
+        self._native_live = False
         if getattr(self, "_native", None) is not None:
             self._native.reset_records()
         return sink

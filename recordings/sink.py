@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from array import array
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 from .mcap_writer import COMPRESSIONS, CompressionUnavailable, FastMcapWriter
 from .meta import METADATA_NAME, STATS_NAME, to_mcap
@@ -46,11 +46,22 @@ class McapSink:
         self.sequences = array("I", [0])  # next sequence number, by channel id (recordings.native reads it)
         self.dirty = False
         self.closed = False
+        #: records held elsewhere (the recorder's C path keeps the end of the open chunk between
+        #: batches): called once before anything else touches the file
+        self.held: Callable[[], None] | None = None
+
+    def release_held(self) -> None:
+        """Have the held records written now (see :attr:`held`)."""
+        held = self.held
+        if held is not None:
+            self.held = None
+            held()
 
     def channel(self, topic: str) -> int:
         """The id of ``topic``'s channel in this file (registered with its schema on first use)."""
         cid = self._channels.get(topic)
         if cid is None:
+            self.release_held()
             kind: ChannelKind = kind_of(topic)
             sid = self._schemas.get(kind.name, 0)  # every channel has a schema
             if not sid:
@@ -69,6 +80,8 @@ class McapSink:
 
     def write_to(self, cid: int, data: bytes, log_time_ns: int, publish_time_ns: int) -> None:
         """Append one message to a channel from :meth:`channel` (the recorder's hot path)."""
+        if self.held is not None:
+            self.release_held()
         seq = self.sequences[cid]
         self.sequences[cid] = seq + 1
         self._writer.add_message(cid, log_time_ns, data, publish_time_ns, seq)
@@ -78,32 +91,38 @@ class McapSink:
         """Append messages, each ``(channel id, log time, publish time, data)``, in order
         (:meth:`write_to` for each, in one call)."""
         if messages:
+            self.release_held()
             self._writer.add_messages(messages, self.sequences)
             self.dirty = True
 
     @property
     def writer(self) -> FastMcapWriter:
         """The file's writer (for records packed elsewhere: :mod:`recordings.native`)."""
+        self.release_held()
         return self._writer
 
     def add_metadata(self, meta: Mapping[str, Any], name: str = METADATA_NAME) -> None:
+        self.release_held()
         self._writer.add_metadata(name, to_mcap(meta))
         self.dirty = True
 
     def flush(self) -> None:
         """Close the chunk in progress and hand everything to the OS: a killed process
         loses nothing written before this call (no fsync: an OS crash may)."""
+        self.release_held()
         self._writer.flush()
         self.dirty = False
 
     def size(self) -> int:
         """Bytes in the file so far (the chunk in progress is not counted)."""
+        self.release_held()
         return self._writer.written()
 
     def close(self, tally: Tally | None = None) -> None:
         """Write the counts (if given), the summary section and the footer."""
         if self.closed:
             return
+        self.release_held()
         self.closed = True
         if tally is not None:
             self._writer.add_metadata(STATS_NAME, {"tally": json.dumps(tally.to_dict())})

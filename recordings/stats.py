@@ -100,6 +100,15 @@ class Tally:
         for topic, n in (noise_by_topic or {}).items():
             self.noise_by_link[_classify(topic)[1]] += n
 
+    def add_events(self, by_topic: Mapping[str, int], by_kind: Mapping[str, int]) -> None:
+        """Count many event samples (``event/*``) by topic and by kind: the counts
+        :meth:`add_kind` makes of them one by one, but the time span (:meth:`span`)."""
+        for topic, n in by_topic.items():
+            self.messages += n
+            self.by_topic[topic] += n
+        for kind, n in by_kind.items():
+            self.errors_by_kind[kind] += n
+
     def span(self, first_ns: int, last_ns: int) -> None:
         """Widen the time span to ``[first_ns, last_ns]``."""
         if self.first_ns is None or first_ns < self.first_ns:

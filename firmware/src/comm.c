@@ -907,13 +907,17 @@ static void walter_decide(uint8_t c)
         walter.plan = walter_plan(c, walter.goal[walter.position][2] & WALTER_MODE_CW, towards);
 }
 
-/* The mover at position `who` asks to turn about this module: count it once while in I. */
+/* The mover at position `who` asks this module anything (pivot or hold): it passes, so count
+ * it once while in I; a hold's sense is the mover's table entry's (module_sim/walter.py). */
 static void walter_passed(uint8_t op, uint8_t who)
 {
-    if (walter.free || walter_done() || op == WALTER_OP_HOLD || walter.passed_by[who >> 3] >> (who & 7) & 1)
+    if (walter.free || walter_done() || walter.passed_by[who >> 3] >> (who & 7) & 1)
         return;
     walter.passed_by[who >> 3] |= (uint8_t)(1u << (who & 7));
-    if (op == WALTER_OP_PIVOT_CW)
+    uint8_t cw = op == WALTER_OP_PIVOT_CW;
+    if (op == WALTER_OP_HOLD && who < WALTER_TABLE_CAPACITY)
+        cw = walter.goal[who][2] & WALTER_MODE_CW;
+    if (cw)
         walter.passed_cw++;
     else
         walter.passed_ccw++;
@@ -1097,6 +1101,7 @@ static uint8_t co_walter(const uint8_t *a)
         wround.op = wside.op != WALTER_OP_HOLD && wround.npivots && !walter_apart(wround.pivot_g[0], wround.g)
                         ? WALTER_OP_LATE : wside.op;
         LINE_SEND(pt, line_walter(BYTE_WALTER_ANSWER, wround.op, 0, 0));
+        walter_passed(wside.op, wside.body[2]);
         if (wside.op == WALTER_OP_HOLD) { /* the pin at the end of the side facing the mover */
             mirrored_args(fold((int16_t)wround.g + 4 - Yref), 0, 0);
             PT_CALL(pt, co_relay_mirrored(FC_JxOpen));
@@ -1104,7 +1109,6 @@ static uint8_t co_walter(const uint8_t *a)
         } else {
             wround.pivot_op[wround.npivots] = wside.op, wround.pivot_g[wround.npivots] = wround.g;
             wround.npivots++;
-            walter_passed(wside.op, wside.body[2]);
         }
     }
     /* back to the centre when the windows are over: an answer's last byte is still on the

@@ -5,8 +5,11 @@ UART0 line between them, the multiplexer) and all IR light (core.c). Python ente
 per *window* on the virtual clock: a window runs every core event before the next Python
 timer and ends early, at the end of an instant, when something outside must act:
 
-* a coil changed (a solenoid or magnet bit of a control board's port): the module's actuator
-  record goes out now, for the mechanics;
+* a coil changed (a solenoid or magnet bit of a control board's port) that the mechanics
+  must judge now: any, while a body of the fleet moves or a module tries to (a magnet pair
+  on); while the world is at rest only one that makes a magnet pair or a relay fight, since
+  no other can start anything (the judge's short way) and is judged the same at the
+  window's end, in time order; none in a world without physics;
 * a byte reached a receiver outside the core (the PC's, a twin's): it goes out on
   ``ir/rx/<dst>`` now, and that receiver delivers it at once.
 
@@ -41,7 +44,7 @@ from bus.codec import Link
 from bus.framer import Framer, patterns
 from bus.ir import burst_light, burst_tail, one_byte_burst
 from bus.keys import PC, WORLD, module_endpoint
-from bus.pins import IR_SEL_A, PORTS, ir_selected
+from bus.pins import IR_SEL_A, MAGNET_NEG, MAGNET_POS, PORTS, ir_selected
 from bus.transport import Bus
 
 from ..control_board import COIL_MASK
@@ -57,6 +60,8 @@ LIB = HERE / "build" / "libhexcore.so"
 MAX_WINDOW_NS = 100_000_000
 _NO_TIME = 2**64 - 1
 _OUT_TX, _OUT_PORTS, _OUT_RX, _OUT_OVERRUN, _OUT_COLLISION = 1, 2, 3, 4, 5
+#: core.c COIL_*: what a module's coil change means to the window
+_COIL_STOP, _COIL_MAGNETS, _COIL_FREE = 0, 1, 2
 #: out_t of core.c
 _OUT = np.dtype([("t", "<u8"), ("aux", "<u8"), ("kind", "<u4"), ("m", "<u4"), ("a", "<i4"),
                  ("b", "<i4"), ("n", "<i4"), ("off", "<u4"), ("off2", "<u4"), ("n2", "<u4")])
@@ -103,6 +108,8 @@ def _library() -> ctypes.CDLL:
     lib.core_error.argtypes = [p]
     lib.core_free.argtypes = [p]
     lib.core_set_route.argtypes = [p, u32, u32, i32]
+    lib.core_set_magnet_pins.argtypes = [p, ctypes.c_char_p]
+    lib.core_set_coil_rule.argtypes = [p, u32, u32, u32]
     lib.core_set_pins.argtypes = [p, u32, p]
     lib.core_power_up.argtypes = [p, u32, u64, u32, u32, p]
     lib.core_set_grammar.argtypes = [p, u32, u32, p, ctypes.c_char_p, p, p]
@@ -156,6 +163,13 @@ class _Fleet:
         self.external_rx: dict[tuple[str, int], int] = {}  # (endpoint, transceiver) -> receiver
         self.sources: dict[str, int] = {}  # endpoint outside the core -> source id
         self.light: dict[tuple[str, int], tuple[list, np.ndarray]] = {}  # routes of outside light
+        self.coil_rule = _COIL_STOP  # what the core was last told (core.c COIL_*)
+
+    def coil_rule_now(self) -> int:
+        mechanics = self.world.mechanics
+        if mechanics is None:
+            return _COIL_FREE
+        return _COIL_MAGNETS if mechanics.at_rest() else _COIL_STOP
 
 
 class FleetCore:
@@ -191,6 +205,8 @@ class FleetCore:
                                bytes(COIL_MASK[p] for p in PORTS))
         if not self._h:
             raise MemoryError("the fleet core could not be made")
+        lib.core_set_magnet_pins(self._h, bytes(
+            v for s in range(1, 7) for pin in (MAGNET_POS[s], MAGNET_NEG[s]) for v in (PORTS.index(pin.port), pin.mask)))
         weakref.finalize(self, lib.core_free, self._h)
         error = lib.core_error(self._h)
         if error:
@@ -398,6 +414,11 @@ class FleetCore:
             limit = now + 1
         if clock.until_ns is not None and clock.until_ns + 1 < limit:
             limit = clock.until_ns + 1
+        for fleet in self._fleets.values():  # judged now: Python acted since the last window
+            rule = fleet.coil_rule_now()
+            if rule != fleet.coil_rule and fleet.modules:
+                self.lib.core_set_coil_rule(self._h, fleet.modules[0].core_index, len(fleet.modules), rule)
+                fleet.coil_rule = rule
         t0 = perf_counter_ns()
         reached = self.lib.core_run(self._h, max(limit, now + 1))
         self.run_ns += perf_counter_ns() - t0

@@ -3,8 +3,8 @@
  *
  * Python enters once per window (core_run): the loop runs every event before `until` in time
  * order and stops early, at the end of an instant, when something outside must act (a coil
- * changed: actuators for the mechanics; a byte reached a receiver outside the core: the PC's,
- * a twin's). What the window produced waits in the output buffers (core_out_*),
+ * changed that the mechanics must judge now: core_set_coil_rule; a byte reached a receiver
+ * outside the core where its framer may act: the PC's, a twin's). What the window produced waits in the output buffers (core_out_*),
  * every byte on every wire with its start time, for module_sim.core to frame and publish.
  *
  * The boards run the robot's own program: the host build of firmware/ (firmware/host), one
@@ -118,6 +118,16 @@ typedef struct {
     uint32_t off, off2, n2;
 } out_t;
 
+/* ports_dirty's bits */
+#define DIRTY_PORTS 1
+#define DIRTY_COILS 2
+/* What a coil change of a module means to the window (core_set_coil_rule): */
+#define COIL_STOP 0   /* the mechanics acts on it now: the window ends with its instant */
+#define COIL_MAGNETS 1 /* the world is at rest: only a change that leaves a magnet pair (two
+                        * neighbouring sides negative) or both relays of a side on can start
+                        * something; any other is judged as well at the window's end */
+#define COIL_FREE 2   /* nobody acts on it (no mechanics) */
+
 typedef struct {
     prog_t prog[2]; /* 0 control, 1 comm */
     uint32_t n_modules, n_receivers, cap_modules, cap_receivers, n_ext_srcs, cap_ext_srcs;
@@ -130,7 +140,9 @@ typedef struct {
     int32_t *module_rx;      /* 7 per module: the receiver of transceiver k */
     uint8_t ir_sel_port;
     uint8_t coil_mask[5]; /* the control board's solenoid and magnet bits, per port */
-    uint8_t *ports_dirty;  /* per module: its ports changed in this instant */
+    uint8_t *ports_dirty;  /* per module: DIRTY_PORTS, DIRTY_COILS in this instant */
+    uint8_t *coil_rule;    /* per module: COIL_* (core_set_coil_rule) */
+    uint8_t magnet_pins[6][4]; /* per side: port and mask of its + relay, of its - relay */
     uint32_t *dirty;       /* those modules, in the order they changed */
     uint32_t n_dirty;
     /* events */
@@ -612,12 +624,11 @@ static void replay(core_t *c, uint32_t b)
                     c->mux_at[m] = c->now;
                 }
             }
-            if (!c->ports_dirty[m]) {
-                c->ports_dirty[m] = 1;
+            if (!c->ports_dirty[m])
                 c->dirty[c->n_dirty++] = m;
-            }
+            c->ports_dirty[m] |= DIRTY_PORTS;
             if (!(b & 1) && ((old ^ e->n) & c->coil_mask[e->a]))
-                c->stop = 1; /* a coil: the mechanics acts on it now */
+                c->ports_dirty[m] |= DIRTY_COILS; /* judged at the instant's end (core_flush_ports) */
             continue;
         }
         const uint8_t *data = io->bytes + e->offset;
@@ -850,6 +861,7 @@ uint32_t core_add_modules(core_t *c, uint32_t n)
         RESIZE(c->src_mark, cap);
         RESIZE(c->module_rx, 7 * (size_t)cap);
         RESIZE(c->ports_dirty, cap);
+        RESIZE(c->coil_rule, cap);
         RESIZE(c->dirty, cap);
         c->cap_modules = cap;
     }
@@ -861,6 +873,7 @@ uint32_t core_add_modules(core_t *c, uint32_t n)
         c->mux_at[m] = 0;
         c->src_mark[m] = 0;
         c->ports_dirty[m] = 0;
+        c->coil_rule[m] = COIL_STOP;
         for (int k = 0; k < 7; k++) {
             c->route[7 * m + k] = -1;
             c->module_rx[7 * m + k] = add_receiver(c, (int32_t)m, k);
@@ -955,6 +968,7 @@ void core_free(core_t *c)
     free(c->ext_mark);
     free(c->module_rx);
     free(c->ports_dirty);
+    free(c->coil_rule);
     free(c->dirty);
     free(c->heap);
     free(c->out);
@@ -1068,19 +1082,60 @@ int32_t core_remove_receiver(core_t *c, int32_t ri)
     return 0;
 }
 
+/* Per side S1..S6 of the control board: port index and mask of its + relay, then of its -
+ * relay (bus.pins MAGNET_POS, MAGNET_NEG). */
+void core_set_magnet_pins(core_t *c, const uint8_t pins[24])
+{
+    memcpy(c->magnet_pins, pins, 24);
+}
+
+/* What a coil change of modules first..first+n-1 means to the window (COIL_*). */
+void core_set_coil_rule(core_t *c, uint32_t first, uint32_t n, uint32_t rule)
+{
+    if (first + n <= c->n_modules)
+        memset(c->coil_rule + first, (int)rule, n);
+}
+
 uint64_t core_next(core_t *c)
 {
     return c->heap_n ? c->heap[0].t : NO_TIME;
 }
 
-/* The ports of every module written in the instant that ends: one record each. */
+/* Can the control board's ports `p` start a move or a fault (COIL_MAGNETS)? A magnet pair
+ * (two neighbouring sides negative, the sides' ring being the same in the body's frame) or a
+ * side with both relays on. */
+static int magnets_may_act(const core_t *c, const uint8_t *p)
+{
+    int neg[6];
+    for (int s = 0; s < 6; s++) {
+        const uint8_t *pin = c->magnet_pins[s];
+        int pos = (p[pin[0]] & pin[1]) != 0;
+        neg[s] = (p[pin[2]] & pin[3]) != 0;
+        if (pos && neg[s])
+            return 1;
+        neg[s] = neg[s] && !pos;
+    }
+    for (int s = 0; s < 6; s++)
+        if (neg[s] && neg[(s + 1) % 6])
+            return 1;
+    return 0;
+}
+
+/* The ports of every module written in the instant that ends: one record each. A coil
+ * change ends the window with this instant unless the module's rule lets it wait. */
 void core_flush_ports(core_t *c)
 {
     for (uint32_t i = 0; i < c->n_dirty; i++) {
         uint32_t m = c->dirty[i];
+        uint8_t dirty = c->ports_dirty[m];
         c->ports_dirty[m] = 0;
         if (c->boards[2 * m].gone)
             continue;
+        if (dirty & DIRTY_COILS) {
+            uint8_t rule = c->coil_rule[m];
+            if (rule == COIL_STOP || (rule == COIL_MAGNETS && magnets_may_act(c, c->boards[2 * m].port)))
+                c->stop = 1;
+        }
         uint8_t ports[10];
         memcpy(ports, c->boards[2 * m].port, 5);
         memcpy(ports + 5, c->boards[2 * m + 1].port, 5);

@@ -175,6 +175,14 @@ PLANNERS: dict[str, FunctionPlanner] = {
 #: checks the goal and beats the rounds and the modules decide their moves
 #: (``PlannerService._run_walter``, planner_svc.rounds); ``hexbench plan`` shows its plan.
 WALTER = "walter"
+
+
+def progress_unit(planner: str) -> str:
+    """What a run's progress counts in (``PlannerProgress.step``): a Walter run's step is a
+    beat, one lockstep round in which many modules move; a central plan's is a step."""
+    return "round" if planner == WALTER else "step"
+
+
 #: The planner of a run or a plan when neither the command nor the scenario names one.
 DEFAULT = "thesis-serial"
 

@@ -76,6 +76,23 @@ def test_a_terminal_gets_a_bar_of_moves():
     assert re.fullmatch(r"\[ *[\d.]+ s\] step +\d+ moves +(\d+)/\1 .* complete: goal reached", rows[summary - 1])
 
 
+def test_a_walter_run_shows_its_progress_in_rounds():
+    """A Walter run beats lockstep rounds (many modules move in one): on a terminal the bar
+    names the round, as the planner's lines do, and never a step."""
+    columns = 120
+    code, screen = run_in_pty(["run", "walter-4", "--planner", "walter", "--clock", "virtual"],
+                              columns=columns)
+    text = screen.decode("utf-8", "replace")
+    assert code == 0, text[-2000:]
+    drawn = re.findall(r"moves \(round (\d+)\).*?(\d+)/12", text)  # the bar: its text, moves n/N
+    assert drawn and int(drawn[-1][0]) >= 9, drawn  # it follows the rounds (10 in all)
+    assert "(step" not in text
+    rows = [r for r in _rows(text, columns) if r]
+    rounds = [int(n) for n in re.findall(r"^\[ *[\d.]+ s\] round +(\d+) moves", "\n".join(rows), re.M)]
+    assert rounds[:3] == [1, 2, 3] and rounds[-1] == 10
+    assert not [r for r in rows if re.match(r"\[ *[\d.]+ s\] step ", r)]
+
+
 def test_plain_progress_lines_are_rate_limited():
     out = io.StringIO()
     with Progress(stream=out, bar=False) as p:

@@ -68,7 +68,11 @@ GOLDEN_THESIS_12 = (10644, 1967, "387779a6f5fe2736e224fdf6b40cf23adeda11564bbce0
 #: times, 46 of them written in another order (windows end at other instants).
 #: Then re-made for the USART's sampling of the line (as above): the same frames and samples,
 #: other garbled values in the PC's bytes and the collision events.
-GOLDEN_THESIS_12_CORE = (7668, 1967, "eff4b13369d368a995bdfe4cefe09df7770ccaa95f077c85f81797242471cd4a")
+#: Then re-made when a coil change that can start nothing (the world at rest, no magnet pair
+#: made) stopped ending the core's window: the same frames and samples, 87 of the PC's
+#: ``ir/rx`` bytes at other log times (a sample without its own time is logged at the last
+#: sim time the recorder saw, and the samples before them in their batch changed).
+GOLDEN_THESIS_12_CORE = (7668, 1967, "f782da25621d9385d496f10b1ffb78f7455a35f7ea5854501c23271a4866e9f5")
 
 
 #: what a summary says of the wall clock (planner/progress when done): not part of the run

@@ -1,18 +1,21 @@
-"""Recorder.write_batch writes what Recorder.write writes, sample by sample: the same messages
-(topic, log time, publish time, sequence, data), channels, Foxglove lines and scene updates,
-counts, parts and strict-mode errors; in C (recordings.native) and in pure Python."""
+"""Recorder.write_batch and Recorder.write_packed (the batch in bus.transport.pack_batch's bytes)
+write what Recorder.write writes, sample by sample: the same file byte for byte (messages:
+topic, log time, publish time, sequence, data; channels, Foxglove lines and scene updates,
+counts, parts and strict-mode errors); in C (recordings.native) and in pure Python."""
 
 from __future__ import annotations
 
 import json
+import re
 
 import pytest
 from mcap.reader import make_reader
 
 from bus.codec import Link, encode_ack, encode_msg1, parse
 from bus.envelope import Envelope
-from bus.transport import _envelope_json
+from bus.transport import _envelope_json, pack_batch
 from recordings import native
+from recordings.foxglove import FrameLog
 from recordings.recorder import Recorder
 from synthetic import run_synthetic
 from toolchain import missing
@@ -48,6 +51,26 @@ def _odd_samples() -> list[tuple[str, bytes]]:
     ]
 
 
+def _odd_events_and_light() -> list[tuple[str, bytes]]:
+    """Events and light as the fleet writes them, and what a JSON reader takes otherwise than
+    a quick look would (escapes, duplicate keys, times that are no times, nesting, non-ASCII)."""
+    events = [b'{"kind":"overrun","src":"m1.comm","sim_time_ns":7000}', b'{"kind":"a\\u0062c","sim_time_ns":1}',
+              b'{"kind":"x","kind":"y","sim_time_ns":5}', b'{"kind":"x","sim_time_ns":5.0}',
+              b'{"kind":"x","sim_time_ns":true}', b'{"kind":"x","sim_time_ns":-3}', b'{"kind":"x","sim_time_ns":0123}',
+              b'{"kind":5,"sim_time_ns":9}', b'{"sim_time_ns":9}', b'{"kind":"x","wall_time_ns":77,"sim_time_ns":8}',
+              b'{"kind":"x","sim_time_ns":8, "nested":{"kind":"z","sim_time_ns":1}}',
+              '{"kind":"\u00e9t\u00e9","sim_time_ns":8}'.encode(), '{"kind":"é","sim_time_ns":8}'.encode(),
+              b'{"kind":"x","sim_time_ns":8}\xff', b'{"kind":"x","sim_time_ns":8} ', b"[1,2]",
+              b'{"kind":"x","sim_time_ns":4611686018427387904}', b'{"kind":"x","sim_time_ns":NaN}',
+              b'{"kind":"x","v":[1,{"a":[]}],"s":"q\\"uote","e":1e5,"f":-0.5}', b'{"kind":"x","sim_time_ns":9}',
+              b'{"kind" : "spaced" , "sim_time_ns" : 10 }', b'{"\\u006bind":"x","sim_time_ns":11}']
+    light = [b'{"src":"a","sim_time_ns":-0,"x":1}', b'{"sim_time_ns": 12 ,"a":1}', b'{"sim_time_ns":"12"}',
+             b'{"wall_time_ns":5}', b'{"x":"\\"sim_time_ns\\":3}', b'{"sim_time_ns":-4}', b'{}', b"{",
+             b'{"sim_time_ns":00012}']
+    return [(f"{ROOT}/event/m{i % 3}.comm", e) for i, e in enumerate(events)] + \
+        [(f"{ROOT}/ir/rx/m{i % 2}.comm", x) for i, x in enumerate(light)]
+
+
 def _many_frames(n: int) -> list[tuple[str, bytes]]:
     frames = [(Link.SIDE, parse(Link.SIDE, encode_msg1(3, -2, 4))), (Link.CENTRE, parse(Link.CENTRE, encode_ack(21))),
               (Link.SIDE, parse(Link.SIDE, b"\x07\x07"))]
@@ -68,7 +91,8 @@ def samples() -> list[tuple[str, bytes]]:
     got: list[tuple[str, bytes]] = []
     run_synthetic(FLEET, attach=lambda bus: bus.subscribe(bus.keys.all, lambda k, p: got.append((k, p))),
                   modules=4, moves=3, filler_frames=20)
-    return got + _odd_samples() + _many_frames(3000) + _odd_samples()
+    return got + _odd_samples() + _odd_events_and_light() + _many_frames(3000) + _odd_samples() + \
+        _odd_events_and_light()
 
 
 def _messages(path) -> list[tuple]:
@@ -83,30 +107,35 @@ def _channels(path) -> list[tuple]:
     return [(c.id, c.topic, c.schema_id, tuple(sorted(c.metadata.items()))) for c in summ.channels.values()]
 
 
-def _record(path, samples, batch: int | None, **kwargs) -> Recorder:
+def _record(path, samples, batch: int | None, packed: bool = False, **kwargs) -> Recorder:
     rec = Recorder(path, fleet=FLEET, time_source=kwargs.pop("time_source", "sim"), start_ns=START_NS,
-                   flush_interval_s=3600, **kwargs)
+                   flush_interval_s=3600, argv=["test"], **kwargs)
     if batch is None:
         for key, payload in samples:
             rec.write(key, payload, receive_wall_ns=WALL_NS)
     else:
         for i in range(0, len(samples), batch):
-            rec.write_batch(samples[i:i + batch], receive_wall_ns=WALL_NS)
+            if packed:
+                rec.write_packed(pack_batch(samples[i:i + batch]), receive_wall_ns=WALL_NS)
+            else:
+                rec.write_batch(samples[i:i + batch], receive_wall_ns=WALL_NS)
     rec.close()
     return rec
 
 
 def _same(tmp_path, samples, batch: int, **kwargs) -> None:
     one = _record(tmp_path / "one.mcap", samples, None, **kwargs)
-    many = _record(tmp_path / "many.mcap", samples, batch, **kwargs)
-    assert len(one.paths) == len(many.paths)
-    for a, b in zip(one.paths, many.paths):
-        got, want = _messages(b), _messages(a)
-        assert len(got) == len(want)
-        for i, (g, w) in enumerate(zip(got, want)):
-            assert g == w, f"message {i} of {a.name}: {g[:4]} != {w[:4]}"
-        assert _channels(b) == _channels(a)
-    assert many.tally.to_dict() == one.tally.to_dict()
+    for name, packed in (("many", False), ("packed", True)):
+        many = _record(tmp_path / f"{name}.mcap", samples, batch, packed, **kwargs)
+        assert len(one.paths) == len(many.paths)
+        for a, b in zip(one.paths, many.paths):
+            got, want = _messages(b), _messages(a)
+            assert len(got) == len(want)
+            for i, (g, w) in enumerate(zip(got, want)):
+                assert g == w, f"message {i} of {a.name} ({name}): {g[:4]} != {w[:4]}"
+            assert _channels(b) == _channels(a)
+            assert b.read_bytes() == a.read_bytes(), f"{b.name}: not the same file"
+        assert many.tally.to_dict() == one.tally.to_dict()
 
 
 @pytest.fixture(params=["native", "python"])
@@ -207,3 +236,86 @@ def test_actuator_records_in_a_batch_are_written_as_write_writes_them(tmp_path, 
     assert scenes > 20  # coil changes drawn after the poses came
     if path_kind == "native" and batch >= 16:
         assert rec._native.state.records > len(stream) // 2  # most records never reached Python
+
+
+def test_packed_batches_leave_python_only_what_it_acts_on(tmp_path, monkeypatch):
+    """write_packed writes frames, their Log lines, events and light in C from the first, and
+    an actuator record whenever it changes no coil: Python sees a module's first record and its
+    coil changes (for the scene), the malformed ones, and makes one Log line per distinct
+    describe text (not one per frame)."""
+    if native.lib() is None:
+        missing("the native batch path (a C compiler builds it)")
+    records = _actuator_stream(3000)
+    frames = _many_frames(3000)
+    events = [(f"{ROOT}/event/m{i % 5}.comm", b'{"kind":"uart-overrun","src":"m%d.comm","sim_time_ns":%d,"lost":82}'
+               % (i % 5, 2_000_000 + i)) for i in range(300)]
+    light = [(f"{ROOT}/ir/rx/pc", b'{"src":"m1.comm","burst":%d,"data":"00","type":"burst"}' % i) for i in range(300)]
+    stream = [s for group in zip(records, frames, events * 10, light * 10) for s in group]
+    python: list[str] = []
+    lines: list[bytes] = []
+    write_one, rest = Recorder._write_one, FrameLog.rest
+    monkeypatch.setattr(Recorder, "_write_one", lambda self, route, *a: (python.append(route.topic),
+                                                                         write_one(self, route, *a))[1])
+    monkeypatch.setattr(FrameLog, "rest", lambda self, payload, key: (lines.append(payload), rest(self, payload, key))[1])
+    rec = _record(tmp_path / "p.mcap", stream, 500, packed=True)
+    assert rec.tally.messages == len(stream)
+    assert not [t for t in python if not t.startswith("world/")]  # frames, events, light: all in C
+    coil_changes, last = 0, {}
+    for key, payload in records:
+        obj = json.loads(payload)
+        coils = (obj.get("joints_open"), obj.get("magnets"))
+        coil_changes += last.get(key) != coils
+        last[key] = coils
+    tails = len({re.sub(rb'^.*?"sim_time_ns":\d+', b"", payload) for _, payload in records})
+    acted = [t for t in python if t.startswith("world/actuators/")]
+    # a module's first record, a port state no module had yet, or one of the 2 % odd ones: a
+    # coil change whose bytes C knows feeds the scene without the careful path
+    assert len(acted) <= 6 + tails + len(records) // 25 and len(acted) < coil_changes
+    assert len(lines) == 3  # one describe text per kind of frame, every other line made in C
+
+
+def test_log_lines_made_in_c_are_the_sdks_own_encoding(tmp_path):
+    """The Log lines write_packed makes in C (every line but the first of each describe text)
+    are what Foxglove's SDK encodes for the frame's line: short and long names (lengths over
+    127 take two bytes), noise at the warning level."""
+    if native.lib() is None:
+        missing("the native batch path (a C compiler builds it)")
+    from foxglove.messages import Log, LogLevel
+
+    from recordings.foxglove import timestamp
+    from recordings.lines import describe
+
+    frames = [(Link.SIDE, parse(Link.SIDE, encode_msg1(3, -2, 4))), (Link.CENTRE, parse(Link.CENTRE, encode_ack(21))),
+              (Link.SIDE, parse(Link.SIDE, b"\x07\x07"))]
+    samples, envs = [], []
+    for i, src in enumerate(["m1.comm", "m" + "7" * 60 + ".comm", "s" * 200, "a b!#$%&'()*+,-./:;<=>?@[]^_`{|}~"]):
+        for j, (link, frame) in enumerate(frames):
+            env = Envelope.of(frame, src=src, dst="*" if j else "d" * (40 * i), sim_time_ns=10 * i + j,
+                              wall_time_ns=WALL_NS, seq=i)
+            samples.append((f"{ROOT}/frame/{link.value}/m{i}.comm", _envelope_json(env)))
+            envs.append(env)
+    rec = _record(tmp_path / "lines.mcap", samples, 500, packed=True)
+    lines = [data for topic, *_, data in _messages(rec.paths[0]) if topic == "foxglove/log"]
+    assert lines == [Log(timestamp=timestamp(START_NS + env.sim_time_ns),
+                         level=LogLevel.Warning if env.kind == "noise" else LogLevel.Info,
+                         message=f"{env.src} → {env.dst}  {describe(env)}  [{env.raw.hex()}]",
+                         name=f"{env.link}/{env.src}").encode() for env in envs]
+    assert any(env.kind == "noise" for env in envs)
+
+
+def test_what_c_holds_between_batches_reaches_the_file_on_a_flush(tmp_path):
+    """write_packed leaves the open chunk's end in C between batches: a flush (the flush
+    thread's, or one before anything Python writes) puts it in the file, so a killed recorder
+    loses no more than before."""
+    from recordings.reader import read_frames
+
+    rec = Recorder(tmp_path / "held.mcap", fleet=FLEET, time_source="sim", start_ns=START_NS, flush_interval_s=3600)
+    frames = _many_frames(300)
+    for i in range(0, 300, 30):
+        rec.write_packed(pack_batch(frames[i:i + 30]), receive_wall_ns=WALL_NS)
+    rec.flush()  # no footer: read as a killed recorder's file is
+    assert len(list(read_frames(tmp_path / "held.mcap"))) == 300
+    rec.write(*frames[0], receive_wall_ns=WALL_NS)  # Python writes after what C held, in order
+    rec.write_packed(pack_batch(frames[:5]), receive_wall_ns=WALL_NS)
+    rec.close()
+    assert [e.seq for e in read_frames(tmp_path / "held.mcap")] == list(range(300)) + [0] + list(range(5))

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from bus.lattice import Cell, Direction, Joint, move_rule
 from bus.timing import NS_PER_S, TICK_NS
@@ -90,3 +92,27 @@ def test_relay_fight_counts_one_coil_and_windows_are_exact():
         MAGNET_W * 0.005 + SOLENOID_W * 0.01)
     assert meter.burst_start("a", 25 * MS) == 0 and meter.burst_start("a", 40 * MS) is None
     assert meter.per_module(100 * MS)["a"].solenoids_j == pytest.approx(SOLENOID_W * 0.02)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.tuples(st.integers(1, 50), st.integers(0, 2), st.integers(0, 2)), min_size=1, max_size=30),
+       st.integers(0, 1500), st.integers(0, 1500))
+def test_last_release_equals_a_walk_from_the_first_change_point(changes, start, span):
+    """last_release starts at the segment holding ``start``: the same answer as a walk over
+    the module's whole history."""
+    meter = EnergyMeter()
+    t = 0
+    for dt, joints, magnets in changes:
+        t += dt * 10
+        meter.on_actuators("m1", t, [True] * joints + [False] * (6 - joints), [1] * magnets + [0] * (6 - magnets))
+    end = start + span
+    tr = meter._tracks["m1"]
+    walked = None
+    for k, tk in enumerate(tr.times):
+        if tk > end:
+            break
+        if tr.active(k):
+            seg_end = tr.times[k + 1] if k + 1 < len(tr.times) else end
+            if seg_end >= start:
+                walked = min(seg_end, end)
+    assert meter.last_release("m1", start, end) == walked

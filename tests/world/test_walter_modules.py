@@ -9,7 +9,7 @@ from __future__ import annotations
 import pytest
 
 from bus.codec import Kind
-from bus.lattice import Cell
+from bus.lattice import Cell, Side
 from bus.messages import Pose, WorldEvent
 from bus.scenario import loads
 from planner_svc.bringup import BringUp
@@ -206,7 +206,9 @@ def _generated(n: int, cost_class: str, seed: int) -> list[Cell]:
     ("firmware", _generated(12, "0", 5)),
     ("firmware", _generated(12, "1", 6)),
     ("firmware", _generated(12, ">1", 7)),
-], ids=["cost1-model", "cost1-firmware", "gen12-cost0", "gen12-cost1", "gen12-cost>1"])
+    ("firmware", _generated(11, "0", 1)),
+], ids=["cost1-model", "cost1-firmware", "gen12-cost0", "gen12-cost1", "gen12-cost>1",
+        "gen11-cost0-passed-by-a-holder"])
 def test_the_fleet_moves_as_the_round_model_round_by_round(program, goal):
     """Which module, which direction, to which cell, in which round, as the round model says;
     no refusal; the PC stops in the round the model's last module arrives. A cost-1 goal (a
@@ -228,6 +230,25 @@ def test_the_fleet_moves_as_the_round_model_round_by_round(program, goal):
         assert rig.result.done and rig.result.rounds == len(model.rounds)
     finally:
         rig.close()
+
+
+def test_a_mover_that_only_asks_to_be_held_passes_too():
+    """Figure 10 counts every module that passes one still in I, not only those that turn
+    about it: a mover going by on the far side of the next module asks it only to open a pin
+    (``hold``). Counted once, in the sense its goal table entry gives."""
+    from bus.functions import WalterOp
+    from module_sim.walter import Entry, WalterState
+
+    w = WalterState(5, 2, 0, Cell(0, 0), table={k: Entry(Cell(k, 1), k % 2 == 0, 0) for k in range(4)})
+    w.passed(WalterOp.PIVOT_CW, 0)
+    w.passed(WalterOp.HOLD, 0)  # the same mover again: counted once
+    w.passed(WalterOp.HOLD, 1)  # passes without turning about it (entry 1: CCW)
+    w.passed(WalterOp.HOLD, 2)  # entry 2: CW
+    assert (w.passed_cw, w.passed_ccw) == (2, 1)
+    start = Cell(0, -3)  # in I, which runs south of the anchor; the cell beyond it is empty
+    contacts = [start.neighbour(s) == Cell(0, -2) for s in Side]
+    w.decide(1, start, contacts)
+    assert w.free and w.position == 3
 
 
 # --- hexbench run SCEN --planner walter ---------------------------------------------------------
