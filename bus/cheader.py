@@ -34,6 +34,7 @@ PACKAGED_DIR = Path(__file__).resolve().parent / "_firmware"
 #: Profile name (module_sim.profiles) -> the tag of its builds.
 PROFILE_TAG = {"v2": "v2", "thesis-2009": "thesis"}
 _build_lock = threading.Lock()
+_fresh: set[str] = set()  # ensure_fresh's targets found (or made) up to date in this process
 
 
 class FirmwareError(HexbenchError):
@@ -54,6 +55,25 @@ def build_path(kind: str, board: str, profile: str) -> Path:
     if not (BUILD_DIR / lib).exists() and (PACKAGED_DIR / lib).exists():
         return PACKAGED_DIR / lib
     return BUILD_DIR / lib
+
+
+def ensure_fresh(target: str) -> None:
+    """In a checkout, remake ``target`` of ``make -C firmware`` (``host``: the host libraries,
+    ``images``: the ATmega162 images) when make finds it older than its sources, once a
+    process: a source changed by a pull or an edit would otherwise run beside a stale build,
+    and the Python model and the C program would part silently. An installed hexbench
+    (no Makefile beside it) keeps what it was built with."""
+    with _build_lock:
+        if target in _fresh or not (FIRMWARE_DIR / "Makefile").exists() or shutil.which("make") is None:
+            return
+        make = ["make", "-s", "-C", str(FIRMWARE_DIR), f"PYTHON={sys.executable}", target]
+        if subprocess.run(make[:1] + ["-q"] + make[2:], capture_output=True).returncode != 0:
+            r = subprocess.run(make, capture_output=True, text=True)
+            if r.returncode != 0:
+                tail = (r.stderr or r.stdout).strip().splitlines()[-1:] or ["(no output)"]
+                raise FirmwareError(f"make -C {FIRMWARE_DIR} {target} failed (its sources changed since "
+                                    f"the last build): {tail[0]}")
+        _fresh.add(target)
 
 
 def ensure_built() -> None:

@@ -26,7 +26,7 @@ import struct
 from pathlib import Path
 from typing import Callable
 
-from bus.cheader import FirmwareError, build_path, ensure_built
+from bus.cheader import BUILD_DIR, FirmwareError, build_path, ensure_built, ensure_fresh
 from bus.pins import OPTICAL_SWITCH, PORTS, port_masks, switch_levels
 
 from .avr import Mcu
@@ -66,6 +66,8 @@ class Program:
             path = build_path("lib", board, profile)
             if not path.exists():
                 ensure_built()
+            elif path.parent == BUILD_DIR:
+                ensure_fresh("host")
         try:
             lib = ctypes.CDLL(str(path))
         except OSError as exc:

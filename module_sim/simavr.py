@@ -33,7 +33,7 @@ import json
 import weakref
 from typing import Any
 
-from bus.cheader import BUILD_DIR, F_CPU, FirmwareError, build_path, ensure_built, ubrr
+from bus.cheader import BUILD_DIR, F_CPU, FirmwareError, build_path, ensure_built, ensure_fresh, ubrr
 from bus.codec import Link
 from bus.pins import DIP_PORT, PORTS, dip_id
 from bus.timing import BITS_PER_BYTE, NS_PER_S, Baud, byte_time_ns
@@ -122,6 +122,8 @@ class SimavrDriver:
         images = [build_path("elf", board, profile) for board in ("comm", "control")]
         if not all(p.exists() for p in images):
             ensure_built()
+        else:
+            ensure_fresh("images")
         err = ctypes.create_string_buffer(256)
         dip = dip_id(module.ctrl.pin_in[DIP_PORT])
         handle = lib.hbl_new(str(images[0]).encode(), str(images[1]).encode(), dip,
