@@ -738,10 +738,7 @@ def _envelope_json(e: Envelope) -> bytes:
     if parts is None:
         if len(_FRAME_PARTS) >= _FRAME_PARTS_MAX:
             _FRAME_PARTS.clear()
-        parts = _FRAME_PARTS[key] = ('{"link":' + _dumps(e.link) + ',"src":',
-                                     ',"raw":"' + e.raw.hex() + '","sim_time_ns":',
-                                     ',"kind":' + _dumps(e.kind) + ',"view":' + _dumps(e.view)
-                                     + ',"first_byte_ns":')
+        parts = _FRAME_PARTS[key] = frame_json_parts(e.link, e.raw, e.kind, e.view)
     names = _NAMES.get((e.src, e.dst, e.origin))
     if names is None:
         names = _NAMES[(e.src, e.dst, e.origin)] = (_dumps(e.src) + ',"dst":' + _dumps(e.dst),
@@ -750,6 +747,22 @@ def _envelope_json(e: Envelope) -> bytes:
     channel = "null" if e.channel is None else e.channel
     return (f'{parts[0]}{names[0]}{parts[1]}{e.sim_time_ns},"wall_time_ns":{e.wall_time_ns},'
             f'"seq":{e.seq}{parts[2]}{first}{names[1]}{channel},"v":{SCHEMA_VERSION}}}').encode()
+
+
+def frame_json_parts(link: str, raw: bytes, kind: str, view: Any) -> tuple[str, str, str]:
+    """An envelope's JSON (``Envelope.to_json``'s bytes) is ``p0 names0 p1 <sim_time_ns>
+    ,"wall_time_ns":<wall> ,"seq":<seq> p2 <first_byte_ns> names1``: ``p0, p1, p2`` of a
+    frame's link, bytes, kind and view (here), ``names0, names1`` of its endpoints
+    (:func:`frame_json_names`). The fleet core renders its frames from these parts."""
+    return ('{"link":' + _dumps(link) + ',"src":', ',"raw":"' + raw.hex() + '","sim_time_ns":',
+            ',"kind":' + _dumps(kind) + ',"view":' + _dumps(view) + ',"first_byte_ns":')
+
+
+def frame_json_names(src: str, dst: str, origin: str, channel: int | None) -> tuple[str, str]:
+    """``names0, names1`` of :func:`frame_json_parts` (``names1`` ends the envelope)."""
+    return (_dumps(src) + ',"dst":' + _dumps(dst),
+            ',"origin":' + _dumps(origin) + ',"channel":' + ("null" if channel is None else str(channel))
+            + f',"v":{SCHEMA_VERSION}}}')
 
 
 #: the JSON of each frame's fixed parts, by (link, bytes); bounded (a fuzz run makes millions)

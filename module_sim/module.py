@@ -148,6 +148,9 @@ class VirtualModule:
                 else:
                     bus.clock.call_at(t.t_last_ns, self._publish_frame, t.frame, src, dst, t.t_last_ns,
                                       first, channel)
+        # what the fleet core renders this wire's frames from (FleetCore.add_fleet)
+        publish.framer, publish.link, publish.src, publish.dst, publish.channel = (  # type: ignore[attr-defined]
+            framer, link, src, dst, channel)
         return publish
 
     def _publish_frame(self, frame, src, dst, t_last, first, channel) -> None:

@@ -27,7 +27,6 @@ light reaches (:meth:`routes_changed`), recomputed when a body moves.
 from __future__ import annotations
 
 import ctypes
-import heapq
 import itertools
 import json
 import subprocess
@@ -45,7 +44,8 @@ from bus.framer import Framer, patterns
 from bus.ir import burst_light, burst_tail, one_byte_burst
 from bus.keys import PC, WORLD, module_endpoint
 from bus.pins import IR_SEL_A, MAGNET_NEG, MAGNET_POS, PORTS, ir_selected
-from bus.transport import Bus
+from bus.envelope import Envelope
+from bus.transport import Bus, frame_json_names, frame_json_parts, pack_batch
 
 from ..control_board import COIL_MASK
 from ..firmware import Program
@@ -60,6 +60,12 @@ LIB = HERE / "build" / "libhexcore.so"
 MAX_WINDOW_NS = 100_000_000
 _NO_TIME = 2**64 - 1
 _OUT_TX, _OUT_PORTS, _OUT_RX, _OUT_OVERRUN, _OUT_COLLISION = 1, 2, 3, 4, 5
+#: a link's number in the core (its whole-write map's key)
+_LINKS = list(Link)
+#: what the core's frames say of their origin (Envelope's default, as frame_sample gave them)
+_ORIGIN = Envelope.__dataclass_fields__["origin"].default
+#: distinct frames whose parts Python remembers (each also in the core)
+_PARTS_MAX = 1 << 16
 #: core.c COIL_*: what a module's coil change means to the window
 _COIL_STOP, _COIL_MAGNETS, _COIL_FREE = 0, 1, 2
 #: out_t of core.c
@@ -109,6 +115,18 @@ def _library() -> ctypes.CDLL:
     lib.core_free.argtypes = [p]
     lib.core_set_route.argtypes = [p, u32, u32, i32]
     lib.core_set_magnet_pins.argtypes = [p, ctypes.c_char_p]
+    cp = ctypes.c_char_p
+    lib.core_set_wire.argtypes = [p, u32, u32, u32, u32, cp, u32, cp, u32, cp, u32]
+    lib.core_wire_empty.argtypes = [p, u32, u32, u32]
+    lib.core_add_parts.restype = u32
+    lib.core_add_parts.argtypes = [p, u32, cp, u32, u32, cp, u32, cp, u32, cp, u32]
+    lib.core_queue_frame.argtypes = [p, u32, u32, u64, u64, u64, u32]
+    lib.core_render_frames.restype = u32
+    lib.core_render_frames.argtypes = [p, u64]
+    lib.core_fleet_out.restype = p
+    lib.core_fleet_out.argtypes = [p, u32, ctypes.POINTER(u64)]
+    lib.core_fleet_out_clear.argtypes = [p, u32]
+    lib.core_drop_frames.argtypes = [p, u32, u32]
     lib.core_set_coil_rule.argtypes = [p, u32, u32, u32]
     lib.core_set_pins.argtypes = [p, u32, p]
     lib.core_power_up.argtypes = [p, u32, u64, u32, u32, p]
@@ -155,8 +173,9 @@ _VIEWS: dict[tuple[int, Any], np.ndarray] = {}
 class _Fleet:
     """What the core knows of one fleet: its bus, its world and its modules' indexes."""
 
-    def __init__(self, bus: Bus, world: "World", modules: list["VirtualModule"], first: int) -> None:
+    def __init__(self, bus: Bus, world: "World", modules: list["VirtualModule"], first: int, fid: int) -> None:
         self.bus = bus
+        self.fid = fid  # its rendered samples' buffer in the core (core_fleet_out)
         self.world = world
         self.modules = modules
         self.index = {m.name: first + k for k, m in enumerate(modules)}  # endpoint -> core module
@@ -219,11 +238,17 @@ class FleetCore:
         self._quoted: dict[str, str] = {}  # endpoint -> its JSON string
         self._timer: Any = None
         self._timer_at = _NO_TIME
-        self._frames: list[tuple] = []  # (t_last, order, bus, frame, src, dst, first, channel)
-        self._order = itertools.count()
+        # frames: the core renders and queues them (core.c "frames"); Python frames a write it
+        # was handed (a frame it does not know whole, a wire whose framer holds bytes)
+        self._writing: tuple[int, int, int] = (0, 0, 0)  # (module, wire, ordinal) being framed
+        self._framed: list[tuple[int, Any, int]] = []  # its frames: (t_last, frame, first)
+        self._parts: dict[tuple[str, bytes], tuple[int, bool]] = {}  # -> (core parts id, whole)
+        self._fids = itertools.count()
+        self._out_n = ctypes.c_uint64()
         self._batches: dict[Bus, list[tuple[str, bytes]]] = {}  # the window's samples, per bus
         self._burst = itertools.count()  # burst numbers of what goes out on ir/rx
         self.windows = 0
+        self.light_taken = 0  # bursts from outside the core it took (put_light)
         self.run_ns = 0  # wall time inside core_run (the rest of a window is Python's)
         # The PC's receivers: a framer like the PC's own follows their bytes, so the core
         # stops a window only at a byte on which the PC's framer can act (core.c quiet_byte)
@@ -245,10 +270,15 @@ class FleetCore:
         """A fleet's world (whose geometry routes its light) and the Python shells of its
         modules in the core (their ports, framers and records)."""
         first = self.lib.core_add_modules(self._h, len(modules))
-        fleet = self._fleets[id(world)] = _Fleet(bus, world, modules, first)
+        fleet = self._fleets[id(world)] = _Fleet(bus, world, modules, first, next(self._fids))
         for k, m in enumerate(modules):
             m.core_index = first + k
             self.modules.append(m)
+            for w, pub in enumerate(m._core_wires):  # what its frames are rendered from
+                key = bus.keys.frame(pub.link.value, pub.src).encode()
+                names0, names1 = (n.encode() for n in frame_json_names(pub.src, pub.dst, _ORIGIN, pub.channel))
+                self.lib.core_set_wire(self._h, first + k, w, fleet.fid, _LINKS.index(pub.link), key, len(key),
+                                       names0, len(names0), names1, len(names1))
             self._name_source(first + k, f"{m.name}.comm")
             for t in range(7):
                 self._rx[self.lib.core_receiver(self._h, first + k, t)] = (fleet, m.name, t)
@@ -267,8 +297,8 @@ class FleetCore:
         self._take_outputs()
         self._publish_frames(self.clock.now_ns())
         self._flush()
-        self._frames = [f for f in self._frames if f[2] is not fleet.bus or f[4].split(".")[0] not in fleet.index]
-        heapq.heapify(self._frames)
+        if fleet.modules:
+            self.lib.core_drop_frames(self._h, fleet.modules[0].core_index, len(fleet.modules))
         if fleet.modules and self.lib.core_remove_modules(self._h, fleet.modules[0].core_index, len(fleet.modules)):
             raise FirmwareError("the fleet core refused to remove a fleet's modules")
         for r in [r for r, (f, _, _) in self._rx.items() if f is fleet]:
@@ -370,12 +400,48 @@ class FleetCore:
                                           byte_ns, flags, len(flags or b""))
         if refused:  # what burst_light checks, checked again where the bytes are read
             raise ValueError(f"the fleet core refused a burst from {d['src']}: {_LIGHT_REFUSED.get(refused, refused)}")
+        self.light_taken += 1
         self._after_call()
 
     def queue_frame(self, bus: Bus, t_last: int, frame: Any, src: str, dst: str, first: int,
                     channel: int | None) -> None:
-        """A frame the core's wires made: published once the run reaches ``t_last``."""
-        heapq.heappush(self._frames, (t_last, next(self._order), bus, frame, src, dst, first, channel))
+        """A frame Python framed from the write it is framing: the core publishes it once the
+        run reaches ``t_last``."""
+        self._framed.append((t_last, frame, first))
+
+    def _frame_write(self, m: int, wire: int, ordinal: int, data: bytes, starts: list[int], byte_ns: int) -> None:
+        """Frame a write the core handed over, queue its frames in the core, and tell the core
+        what it may render alone from now on: a write of these bytes on this link, whole,
+        from an empty framer (the framer's own cache of whole writes, taught to the core)."""
+        pub = self.modules[m]._core_wires[wire]  # type: ignore[union-attr]
+        framer = pub.framer
+        was_empty = not framer._buf and not framer._noise
+        self._framed.clear()
+        pub(data, starts, byte_ns)
+        empty = not framer._buf and not framer._noise
+        framed = self._framed
+        whole = was_empty and empty and len(framed) == 1 and framed[0][1].raw == data
+        lib, h = self.lib, self._h
+        for t_last, frame, first in framed:
+            lib.core_queue_frame(h, m, wire, t_last, ordinal, first, self._parts_of(frame, whole))
+        if empty:
+            lib.core_wire_empty(h, m, wire, 1)
+
+    def _parts_of(self, frame: Any, whole: bool) -> int:
+        """The core's id of ``frame``'s envelope parts (bus.transport.frame_json_parts), made
+        once per link and bytes (a noise frame's view says what came around it: each its own)."""
+        kind = frame.kind.value
+        key = (frame.link.value, frame.raw)
+        known = self._parts.get(key) if kind != "noise" else None
+        if known is not None and (known[1] or not whole):
+            return known[0]
+        p0, p1, p2 = (x.encode() for x in frame_json_parts(frame.link.value, frame.raw, kind, frame.view))
+        raw = frame.raw
+        pid = self.lib.core_add_parts(self._h, _LINKS.index(frame.link), raw, len(raw), int(whole),
+                                      p0, len(p0), p1, len(p1), p2, len(p2))
+        if kind != "noise" and len(self._parts) < _PARTS_MAX:
+            self._parts[key] = (pid, whole)
+        return pid
 
     def put(self, bus: Bus, key: str, payload: bytes) -> None:
         """A sample of the window, put with the others at its end (:meth:`Bus.put_batch`)."""
@@ -392,9 +458,7 @@ class FleetCore:
 
     def _kick(self) -> None:
         """Book the next window at the core's next event (or the next frame due)."""
-        nxt = self.lib.core_next(self._h)
-        if self._frames and self._frames[0][0] < nxt:
-            nxt = self._frames[0][0]
+        nxt = self.lib.core_next(self._h)  # its next event, or the next frame's last byte
         if nxt >= self._timer_at:
             return
         if self._timer is not None:
@@ -431,17 +495,24 @@ class FleetCore:
         self._kick()
 
     def _publish_frames(self, now: int) -> None:
-        frames, put = self._frames, self.put
-        while frames and frames[0][0] <= now:
-            t_last, _, bus, frame, src, dst, first, channel = heapq.heappop(frames)
-            put(bus, *bus.frame_sample(frame, src=src, dst=dst, sim_time_ns=t_last, first_byte_ns=first,
-                                       channel=channel))
+        """The core renders every frame whose last byte ended by ``now`` (after the window's
+        other samples, in the order of their last bytes: each source's ``seq`` in that order)."""
+        self.lib.core_render_frames(self._h, now)
 
     def _flush(self) -> None:
-        if self._batches:
-            batches, self._batches = self._batches, {}
-            for bus, batch in batches.items():
-                bus.put_batch(batch)
+        lib, h, n = self.lib, self._h, self._out_n
+        batches, self._batches = self._batches, {}
+        for fleet in self._fleets.values():
+            addr = lib.core_fleet_out(h, fleet.fid, ctypes.byref(n))
+            items = batches.pop(fleet.bus, None)
+            if n.value:
+                frames = ctypes.string_at(addr, n.value)
+                lib.core_fleet_out_clear(h, fleet.fid)
+                fleet.bus.put_packed(pack_batch(items) + frames if items else frames)
+            elif items:
+                fleet.bus.put_batch(items)
+        for bus, items in batches.items():  # a fleet that left the core in this window
+            bus.put_batch(items)
 
     def _take_outputs(self) -> None:
         lib, h = self.lib, self._h
@@ -461,8 +532,8 @@ class FleetCore:
         rx_out, quoted, src_names, framers = self._rx_out, self._quoted, self._src_names, self._framers
         framed_now: dict[int, tuple[bytearray, list[int]]] = {}  # framed receiver -> its bytes, their ends
         for t, aux, kind, m, a, b, cnt, off, off2, n2 in out:
-            if kind == _OUT_TX:
-                modules[m].core_wire(a, raw[off:off + cnt], starts[off:off + cnt].tolist(), b)
+            if kind == _OUT_TX:  # aux: the write's ordinal (frames of one instant keep its order)
+                self._frame_write(m, a, aux, raw[off:off + cnt], starts[off:off + cnt].tolist(), b)
             elif kind == _OUT_PORTS:  # one record per module and instant
                 module = modules[m]
                 module.core_ports(raw[off:off + 10])

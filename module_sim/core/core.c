@@ -28,6 +28,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/mman.h>
+#include <time.h>
 #include <unistd.h>
 
 #include "hexbot_host.h"
@@ -48,6 +49,33 @@ typedef struct {
     uint64_t t, seq;
     uint32_t kind, a, b, pad;
 } ev_t;
+
+/* Frames rendered here (core_set_wire, core_add_parts, core_render_frames): a frame waits in
+ * a queue until the window passes its last byte, then becomes its envelope's bytes,
+ * bus.transport.frame_json's parts around its times, seq and wall time. */
+typedef struct {
+    uint64_t t_last, ordinal, first;
+    uint32_t m, wire, parts;
+} fq_t;
+
+typedef struct {
+    char *s;            /* p0 p1 p2 back to back */
+    uint32_t n0, n1, n2;
+    uint32_t link, rawn;
+    uint8_t *raw;       /* whole-write key (NULL: not in the map) */
+} parts_t;
+
+typedef struct {
+    char *key, *names0, *names1;
+    uint32_t keyn, n0, n1, link;
+} wire_t;
+
+typedef struct {
+    uint8_t *d;
+    size_t n, cap;
+} buf_t;
+
+#define N_WIRES 10 /* W_IR + 7 transceivers */
 
 typedef struct {
     void *lib;
@@ -171,6 +199,20 @@ typedef struct {
     span_t *burst_runs; /* medium_add's burst, touching bytes merged */
     uint32_t burst_runs_n, burst_runs_cap;
     int stop;
+    /* frames */
+    wire_t *wires;          /* N_WIRES per module (core_set_wire) */
+    uint8_t *wire_empty;    /* N_WIRES per module: Python's framer of the wire holds nothing */
+    uint32_t *fleet_of;     /* per module: its fleet's output buffer */
+    uint32_t *seq_of;       /* 2 per module: the next frame seq of its control, comm board */
+    parts_t *parts;
+    uint32_t parts_n, parts_cap;
+    uint32_t *pmap;         /* open addressing: parts id + 1 of (link, whole write); 0 empty */
+    uint32_t pmap_cap, pmap_n;
+    fq_t *fq;
+    uint32_t fq_n, fq_cap;
+    uint64_t ordinal;       /* writes on wires so far (frames of one instant keep their order) */
+    buf_t *fleet_out;
+    uint32_t n_fleets;
     int stepping; /* the board whose step runs (hexbot_flush) */
     /* the framer grammar of framed receivers (core_set_grammar): patterns, -1 a free byte */
     int16_t *tpl_pat;    /* n_tpl x tpl_max */
@@ -603,6 +645,151 @@ static void ir_done(core_t *c, uint32_t ri, int32_t mi)
         c->stop = 1;
 }
 
+/* --- frames ---------------------------------------------------------------------------------- */
+static int fq_less(const fq_t *a, const fq_t *b)
+{
+    return a->t_last < b->t_last || (a->t_last == b->t_last && a->ordinal < b->ordinal);
+}
+
+static void fq_push(core_t *c, fq_t f)
+{
+    GROW(c->fq, c->fq_n, c->fq_cap, 1);
+    uint32_t i = c->fq_n++;
+    while (i) {
+        uint32_t up = (i - 1) / 2;
+        if (!fq_less(&f, &c->fq[up]))
+            break;
+        c->fq[i] = c->fq[up];
+        i = up;
+    }
+    c->fq[i] = f;
+}
+
+static fq_t fq_pop(core_t *c)
+{
+    fq_t top = c->fq[0], last = c->fq[--c->fq_n];
+    uint32_t i = 0, n = c->fq_n;
+    for (;;) {
+        uint32_t l = 2 * i + 1, r = l + 1, m = i;
+        const fq_t *best = &last;
+        if (l < n && fq_less(&c->fq[l], best)) {
+            m = l;
+            best = &c->fq[l];
+        }
+        if (r < n && fq_less(&c->fq[r], best))
+            m = r;
+        if (m == i)
+            break;
+        c->fq[i] = c->fq[m];
+        i = m;
+    }
+    if (n)
+        c->fq[i] = last;
+    return top;
+}
+
+static uint64_t parts_hash(uint32_t link, const uint8_t *raw, uint32_t n)
+{
+    uint64_t h = 1469598103934665603ull ^ link;
+    for (uint32_t i = 0; i < n; i++)
+        h = (h ^ raw[i]) * 1099511628211ull;
+    return h;
+}
+
+/* The parts of a whole write of `n` bytes on a wire of `link` that Python's framer, empty,
+ * turns into exactly one frame of those bytes (core_add_parts with whole), or -1. */
+static int32_t parts_find(const core_t *c, uint32_t link, const uint8_t *raw, uint32_t n)
+{
+    if (!c->pmap_cap)
+        return -1;
+    uint32_t mask = c->pmap_cap - 1;
+    for (uint32_t i = (uint32_t)parts_hash(link, raw, n) & mask;; i = (i + 1) & mask) {
+        uint32_t id = c->pmap[i];
+        if (!id)
+            return -1;
+        const parts_t *p = &c->parts[id - 1];
+        if (p->link == link && p->rawn == n && !memcmp(p->raw, raw, n))
+            return (int32_t)(id - 1);
+    }
+}
+
+static void pmap_put(core_t *c, uint32_t id)
+{
+    if (2 * (c->pmap_n + 1) > c->pmap_cap) {
+        uint32_t old = c->pmap_cap, *was = c->pmap;
+        c->pmap_cap = old ? 2 * old : 1024;
+        c->pmap = calloc(c->pmap_cap, sizeof *c->pmap);
+        if (!c->pmap)
+            abort();
+        c->pmap_n = 0;
+        for (uint32_t i = 0; i < old; i++)
+            if (was[i])
+                pmap_put(c, was[i] - 1);
+        free(was);
+    }
+    const parts_t *p = &c->parts[id];
+    uint32_t mask = c->pmap_cap - 1;
+    uint32_t i = (uint32_t)parts_hash(p->link, p->raw, p->rawn) & mask;
+    while (c->pmap[i])
+        i = (i + 1) & mask;
+    c->pmap[i] = id + 1;
+    c->pmap_n++;
+}
+
+static void buf_put(buf_t *b, const void *data, size_t n)
+{
+    if (b->n + n > b->cap) {
+        size_t cap = b->cap ? b->cap : 65536;
+        while (cap < b->n + n)
+            cap *= 2;
+        b->d = realloc(b->d, cap);
+        if (!b->d)
+            abort();
+        b->cap = cap;
+    }
+    memcpy(b->d + b->n, data, n);
+    b->n += n;
+}
+
+static void buf_u64(buf_t *b, uint64_t v)
+{
+    char tmp[24];
+    int i = 24;
+    do {
+        tmp[--i] = (char)('0' + v % 10);
+        v /= 10;
+    } while (v);
+    buf_put(b, tmp + i, (size_t)(24 - i));
+}
+
+/* One frame's sample in pack_batch's layout: u16 key length, u32 payload length (LE), the key,
+ * the envelope (bus.transport.frame_json: p0 names0 p1 t_last wall seq p2 first names1). */
+static void render_frame(core_t *c, const fq_t *f, uint64_t wall)
+{
+    const wire_t *w = &c->wires[(size_t)N_WIRES * f->m + f->wire];
+    const parts_t *p = &c->parts[f->parts];
+    buf_t *b = &c->fleet_out[c->fleet_of[f->m]];
+    uint32_t board = (f->wire == W_UP || f->wire == W_DEBUG) ? 0 : 1;
+    uint8_t head[6] = {(uint8_t)w->keyn, (uint8_t)(w->keyn >> 8)};
+    size_t at = b->n;
+    buf_put(b, head, 6);
+    buf_put(b, w->key, w->keyn);
+    size_t start = b->n;
+    buf_put(b, p->s, p->n0);
+    buf_put(b, w->names0, w->n0);
+    buf_put(b, p->s + p->n0, p->n1);
+    buf_u64(b, f->t_last);
+    buf_put(b, ",\"wall_time_ns\":", 16);
+    buf_u64(b, wall);
+    buf_put(b, ",\"seq\":", 7);
+    buf_u64(b, c->seq_of[2 * f->m + board]++);
+    buf_put(b, p->s + p->n0 + p->n1, p->n2);
+    buf_u64(b, f->first);
+    buf_put(b, w->names1, w->n1);
+    uint32_t len = (uint32_t)(b->n - start);
+    memcpy(b->d + at + 2, &len, 4); /* little-endian hosts (x86, arm) */
+}
+
 /* --- boards --------------------------------------------------------------------------------- */
 static void step_board(core_t *c, uint32_t b);
 
@@ -651,11 +838,24 @@ static void replay(core_t *c, uint32_t b)
             if (ri >= 0)
                 medium_add(c, ri, (int32_t)m, data, starts, n, byte_ns, NULL);
         }
+        uint64_t ordinal = c->ordinal++;
+        size_t wi = (size_t)N_WIRES * m + (uint32_t)wire;
+        if (c->wire_empty[wi] && c->wires) {
+            /* a whole frame Python's framer knows: rendered here when its last byte ends */
+            int32_t parts = parts_find(c, c->wires[wi].link, data, n);
+            if (parts >= 0) {
+                fq_t f = {starts[n - 1] + byte_ns, ordinal, starts[0], m, (uint32_t)wire, (uint32_t)parts};
+                fq_push(c, f);
+                continue;
+            }
+        }
+        c->wire_empty[wi] = 0; /* Python frames it, and says when its framer is empty again */
         out_t *o = out_new(c, OUT_TX, c->now, m);
         o->a = wire;
         o->n = (int32_t)n;
         o->off = out_put_bytes(c, data, starts, n);
         o->b = (int32_t)byte_ns;
+        o->aux = ordinal;
     }
     io->n_events = 0;
     io->n_bytes = 0;
@@ -862,6 +1062,10 @@ uint32_t core_add_modules(core_t *c, uint32_t n)
         RESIZE(c->module_rx, 7 * (size_t)cap);
         RESIZE(c->ports_dirty, cap);
         RESIZE(c->coil_rule, cap);
+        RESIZE(c->wires, (size_t)N_WIRES * cap);
+        RESIZE(c->wire_empty, (size_t)N_WIRES * cap);
+        RESIZE(c->fleet_of, cap);
+        RESIZE(c->seq_of, 2 * (size_t)cap);
         RESIZE(c->dirty, cap);
         c->cap_modules = cap;
     }
@@ -874,6 +1078,10 @@ uint32_t core_add_modules(core_t *c, uint32_t n)
         c->src_mark[m] = 0;
         c->ports_dirty[m] = 0;
         c->coil_rule[m] = COIL_STOP;
+        memset(&c->wires[(size_t)N_WIRES * m], 0, N_WIRES * sizeof *c->wires);
+        memset(&c->wire_empty[(size_t)N_WIRES * m], 0, N_WIRES); /* Python frames until core_set_wire */
+        c->fleet_of[m] = 0;
+        c->seq_of[2 * m] = c->seq_of[2 * m + 1] = 0;
         for (int k = 0; k < 7; k++) {
             c->route[7 * m + k] = -1;
             c->module_rx[7 * m + k] = add_receiver(c, (int32_t)m, k);
@@ -969,6 +1177,25 @@ void core_free(core_t *c)
     free(c->module_rx);
     free(c->ports_dirty);
     free(c->coil_rule);
+    for (size_t i = 0; i < (size_t)N_WIRES * c->n_modules; i++) {
+        free(c->wires[i].key);
+        free(c->wires[i].names0);
+        free(c->wires[i].names1);
+    }
+    free(c->wires);
+    free(c->wire_empty);
+    free(c->fleet_of);
+    free(c->seq_of);
+    for (uint32_t i = 0; i < c->parts_n; i++) {
+        free(c->parts[i].s);
+        free(c->parts[i].raw);
+    }
+    free(c->parts);
+    free(c->pmap);
+    free(c->fq);
+    for (uint32_t i = 0; i < c->n_fleets; i++)
+        free(c->fleet_out[i].d);
+    free(c->fleet_out);
     free(c->dirty);
     free(c->heap);
     free(c->out);
@@ -1098,7 +1325,142 @@ void core_set_coil_rule(core_t *c, uint32_t first, uint32_t n, uint32_t rule)
 
 uint64_t core_next(core_t *c)
 {
-    return c->heap_n ? c->heap[0].t : NO_TIME;
+    uint64_t t = c->heap_n ? c->heap[0].t : NO_TIME;
+    if (c->fq_n && c->fq[0].t_last < t)
+        t = c->fq[0].t_last; /* a frame the window must pass to publish */
+    return t;
+}
+
+static char *dup_n(const char *s, uint32_t n)
+{
+    char *d = malloc(n ? n : 1);
+    if (!d)
+        abort();
+    memcpy(d, s, n);
+    return d;
+}
+
+/* Wire `wire` of module m: its fleet's output buffer, its link (parts_find's key), its frames'
+ * key and the envelope's names (bus.transport.frame_json). Python frames nothing of it since
+ * (its framer is empty). */
+void core_set_wire(core_t *c, uint32_t m, uint32_t wire, uint32_t fleet, uint32_t link, const char *key,
+                   uint32_t keyn, const char *names0, uint32_t n0, const char *names1, uint32_t n1)
+{
+    if (m >= c->n_modules || wire >= N_WIRES)
+        return;
+    if (fleet >= c->n_fleets) {
+        c->fleet_out = realloc(c->fleet_out, (size_t)(fleet + 1) * sizeof *c->fleet_out);
+        if (!c->fleet_out)
+            abort();
+        memset(c->fleet_out + c->n_fleets, 0, (size_t)(fleet + 1 - c->n_fleets) * sizeof *c->fleet_out);
+        c->n_fleets = fleet + 1;
+    }
+    wire_t *w = &c->wires[(size_t)N_WIRES * m + wire];
+    free(w->key);
+    free(w->names0);
+    free(w->names1);
+    w->key = dup_n(key, keyn);
+    w->names0 = dup_n(names0, n0);
+    w->names1 = dup_n(names1, n1);
+    w->keyn = keyn;
+    w->n0 = n0;
+    w->n1 = n1;
+    w->link = link;
+    c->fleet_of[m] = fleet;
+    c->wire_empty[(size_t)N_WIRES * m + wire] = 1;
+}
+
+/* Python's framer of the wire holds nothing again (1) or does (0). */
+void core_wire_empty(core_t *c, uint32_t m, uint32_t wire, uint32_t empty)
+{
+    if (m < c->n_modules && wire < N_WIRES && c->wires[(size_t)N_WIRES * m + wire].key)
+        c->wire_empty[(size_t)N_WIRES * m + wire] = (uint8_t)(empty != 0);
+}
+
+/* A frame's parts (p0, p1, p2 of bus.transport.frame_json); `whole`: a write of exactly `raw`
+ * on an empty wire of `link` is this frame (the core renders it without Python). */
+uint32_t core_add_parts(core_t *c, uint32_t link, const uint8_t *raw, uint32_t rawn, uint32_t whole,
+                        const char *p0, uint32_t n0, const char *p1, uint32_t n1, const char *p2, uint32_t n2)
+{
+    GROW(c->parts, c->parts_n, c->parts_cap, 1);
+    parts_t *p = &c->parts[c->parts_n];
+    p->s = malloc((size_t)n0 + n1 + n2 + 1);
+    if (!p->s)
+        abort();
+    memcpy(p->s, p0, n0);
+    memcpy(p->s + n0, p1, n1);
+    memcpy(p->s + n0 + n1, p2, n2);
+    p->n0 = n0;
+    p->n1 = n1;
+    p->n2 = n2;
+    p->link = link;
+    p->rawn = rawn;
+    p->raw = NULL;
+    if (whole) {
+        p->raw = (uint8_t *)dup_n((const char *)raw, rawn);
+        pmap_put(c, c->parts_n);
+    }
+    return c->parts_n++;
+}
+
+/* A frame Python framed (a write it was handed, OUT_TX's `aux` its ordinal). */
+void core_queue_frame(core_t *c, uint32_t m, uint32_t wire, uint64_t t_last, uint64_t ordinal, uint64_t first,
+                      uint32_t parts)
+{
+    if (m >= c->n_modules || wire >= N_WIRES || parts >= c->parts_n || !c->wires[(size_t)N_WIRES * m + wire].key)
+        return;
+    fq_t f = {t_last, ordinal, first, m, wire, parts};
+    fq_push(c, f);
+}
+
+/* Every queued frame whose last byte ended by `now`, in that order, into its fleet's buffer. */
+uint32_t core_render_frames(core_t *c, uint64_t now)
+{
+    uint32_t n = 0;
+    uint64_t wall = 0;
+    while (c->fq_n && c->fq[0].t_last <= now) {
+        fq_t f = fq_pop(c);
+        if (c->boards[2 * f.m].gone)
+            continue;
+        if (!n) {
+            struct timespec ts;
+            clock_gettime(CLOCK_REALTIME, &ts);
+            wall = (uint64_t)ts.tv_sec * 1000000000ull + (uint64_t)ts.tv_nsec;
+        }
+        render_frame(c, &f, wall);
+        n++;
+    }
+    return n;
+}
+
+/* Fleet f's rendered samples (pack_batch's bytes) and their length; cleared by Python. */
+const uint8_t *core_fleet_out(core_t *c, uint32_t f, uint64_t *n)
+{
+    if (f >= c->n_fleets) {
+        *n = 0;
+        return NULL;
+    }
+    *n = c->fleet_out[f].n;
+    return c->fleet_out[f].d;
+}
+
+void core_fleet_out_clear(core_t *c, uint32_t f)
+{
+    if (f < c->n_fleets)
+        c->fleet_out[f].n = 0;
+}
+
+/* Frames of modules first..first+n-1 still queued are dropped (their fleet left). */
+void core_drop_frames(core_t *c, uint32_t first, uint32_t n)
+{
+    uint32_t k = 0;
+    for (uint32_t i = 0; i < c->fq_n; i++)
+        if (c->fq[i].m < first || c->fq[i].m >= first + n)
+            c->fq[k++] = c->fq[i];
+    uint32_t total = k;
+    c->fq_n = 0;
+    for (uint32_t i = 0; i < total; i++) /* re-heap (in place: push reads only below i) */
+        fq_push(c, c->fq[i]);
 }
 
 /* Can the control board's ports `p` start a move or a fault (COIL_MAGNETS)? A magnet pair
