@@ -244,49 +244,62 @@ static _Thread_local core_t *g_core;
         }                                                                                        \
     } while (0)
 
+/* A binary min-heap of `type` in c->field (count c->field##_n, capacity c->field##_cap) ordered
+ * by less(): NAME_push and NAME_pop. */
+#define DEFINE_HEAP(name, type, field, less)                                                     \
+    static void name##_push(core_t *c, type e)                                                   \
+    {                                                                                            \
+        GROW(c->field, c->field##_n, c->field##_cap, 1);                                         \
+        uint32_t i = c->field##_n++;                                                             \
+        while (i) {                                                                              \
+            uint32_t p = (i - 1) / 2;                                                            \
+            if (!less(&e, &c->field[p]))                                                         \
+                break;                                                                           \
+            c->field[i] = c->field[p];                                                           \
+            i = p;                                                                               \
+        }                                                                                        \
+        c->field[i] = e;                                                                         \
+    }                                                                                            \
+    static type name##_pop(core_t *c)                                                            \
+    {                                                                                            \
+        type top = c->field[0], last = c->field[--c->field##_n];                                 \
+        uint32_t i = 0, n = c->field##_n;                                                        \
+        for (;;) {                                                                               \
+            uint32_t l = 2 * i + 1, r = l + 1, m = i;                                            \
+            const type *best = &last;                                                            \
+            if (l < n && less(&c->field[l], best)) {                                             \
+                m = l;                                                                           \
+                best = &c->field[l];                                                             \
+            }                                                                                    \
+            if (r < n && less(&c->field[r], best))                                               \
+                m = r;                                                                           \
+            if (m == i)                                                                          \
+                break;                                                                           \
+            c->field[i] = c->field[m];                                                           \
+            i = m;                                                                               \
+        }                                                                                        \
+        if (n)                                                                                   \
+            c->field[i] = last;                                                                  \
+        return top;                                                                              \
+    }
+
 /* --- the event heap: (t, seq), seq in scheduling order as the Python clock's ties ---------- */
 static int ev_less(const ev_t *x, const ev_t *y)
 {
     return x->t < y->t || (x->t == y->t && x->seq < y->seq);
 }
 
+DEFINE_HEAP(ev, ev_t, heap, ev_less)
+
 static void push(core_t *c, uint64_t t, uint32_t kind, uint32_t a, uint32_t b)
 {
-    GROW(c->heap, c->heap_n, c->heap_cap, 1);
     ev_t e = {t < c->now ? c->now : t, c->seq++, kind, a, b, 0};
-    uint32_t i = c->heap_n++;
-    while (i) {
-        uint32_t p = (i - 1) / 2;
-        if (!ev_less(&e, &c->heap[p]))
-            break;
-        c->heap[i] = c->heap[p];
-        i = p;
-    }
-    c->heap[i] = e;
+    ev_push(c, e);
 }
 
 static ev_t pop(core_t *c)
 {
-    ev_t top = c->heap[0];
-    ev_t last = c->heap[--c->heap_n];
-    uint32_t i = 0, n = c->heap_n;
-    for (;;) {
-        uint32_t l = 2 * i + 1, r = l + 1, m = i;
-        const ev_t *best = &last;
-        if (l < n && ev_less(&c->heap[l], best)) {
-            m = l;
-            best = &c->heap[l];
-        }
-        if (r < n && ev_less(&c->heap[r], best))
-            m = r;
-        if (m == i)
-            break;
-        c->heap[i] = c->heap[m];
-        i = m;
-    }
-    if (n)
-        c->heap[i] = last;
-    return top;
+    return ev_pop(c);
 }
 
 /* --- outputs -------------------------------------------------------------------------------- */
@@ -651,42 +664,7 @@ static int fq_less(const fq_t *a, const fq_t *b)
     return a->t_last < b->t_last || (a->t_last == b->t_last && a->ordinal < b->ordinal);
 }
 
-static void fq_push(core_t *c, fq_t f)
-{
-    GROW(c->fq, c->fq_n, c->fq_cap, 1);
-    uint32_t i = c->fq_n++;
-    while (i) {
-        uint32_t up = (i - 1) / 2;
-        if (!fq_less(&f, &c->fq[up]))
-            break;
-        c->fq[i] = c->fq[up];
-        i = up;
-    }
-    c->fq[i] = f;
-}
-
-static fq_t fq_pop(core_t *c)
-{
-    fq_t top = c->fq[0], last = c->fq[--c->fq_n];
-    uint32_t i = 0, n = c->fq_n;
-    for (;;) {
-        uint32_t l = 2 * i + 1, r = l + 1, m = i;
-        const fq_t *best = &last;
-        if (l < n && fq_less(&c->fq[l], best)) {
-            m = l;
-            best = &c->fq[l];
-        }
-        if (r < n && fq_less(&c->fq[r], best))
-            m = r;
-        if (m == i)
-            break;
-        c->fq[i] = c->fq[m];
-        i = m;
-    }
-    if (n)
-        c->fq[i] = last;
-    return top;
-}
+DEFINE_HEAP(fq, fq_t, fq, fq_less)
 
 static uint64_t parts_hash(uint32_t link, const uint8_t *raw, uint32_t n)
 {
