@@ -28,6 +28,7 @@ in short:
 
 from __future__ import annotations
 
+import heapq
 import math
 from dataclasses import dataclass, field, replace
 from enum import Enum
@@ -286,6 +287,71 @@ def negative_pairs(magnets: Sequence[int]) -> list[Joint]:
     return [k for k in Joint if neg[Side.of(k - 1) - 1] and neg[k - 1]]
 
 
+_MAG_VALUES = frozenset((MAG_OFF, MAG_POS, MAG_NEG, MAG_BOTH))
+_PAIRS: dict[tuple[int, ...], frozenset[Joint]] = {}  # a module's magnets -> its negative pairs
+
+
+def _pairs(magnets: tuple[int, ...]) -> frozenset[Joint]:
+    """:func:`negative_pairs` as a set, kept per magnet state (at most 4**6 of them)."""
+    pairs = _PAIRS.get(magnets)
+    if pairs is None:
+        pairs = _PAIRS[magnets] = frozenset(negative_pairs(magnets))
+    return pairs
+
+
+_AROUND: dict[Cell, tuple[Cell, ...]] = {}
+
+
+def _around(cell: Cell) -> tuple[Cell, ...]:
+    """The six neighbours of ``cell``, sides 1..6 (kept: the lattice does not change)."""
+    cells = _AROUND.get(cell)
+    if cells is None:
+        cells = _AROUND[cell] = tuple(cell.neighbours())
+    return cells
+
+
+@dataclass(frozen=True)
+class _Way:
+    """A mobile's rotation about one pivot in one direction: where its substrate would
+    be, and Table 4-3's rule, cells that must be empty and goal."""
+
+    direction: Direction
+    substrate: Cell
+    rule: MoveRule
+    sweep: tuple[Cell, ...]
+    goal: Cell
+
+
+_WAYS: dict[tuple[Cell, int], tuple[_Way, _Way]] = {}
+_READS: dict[tuple[Cell, int], frozenset[Cell]] = {}
+
+
+def _ways(cell: Cell, j: Joint) -> tuple[_Way, _Way]:
+    """CW then CCW about global joint ``j`` of a mobile in ``cell`` (kept per cell and joint)."""
+    ways = _WAYS.get((cell, j))
+    if ways is None:
+        found = []
+        for d in (Direction.CW, Direction.CCW):
+            rule = move_rule(j, d)
+            sub, sweep, goal = rule.cells(cell)
+            assert sub == substrate_cell(cell, j, d)  # Table 4-3 and the vertex geometry agree
+            found.append(_Way(d, sub, rule, sweep, goal))
+        ways = _WAYS[(cell, j)] = (found[0], found[1])
+    return ways
+
+
+def _reads(cell: Cell, j: Joint) -> frozenset[Cell]:
+    """Every cell whose occupant (module, obstacle, reservation) or module state an
+    evaluation of a mobile in ``cell`` about global joint ``j`` can read: the cell and its
+    neighbours (substrate candidates, latches), the goal and sweep of both directions."""
+    reads = _READS.get((cell, j))
+    if reads is None:
+        ways = _ways(cell, j)
+        reads = _READS[(cell, j)] = frozenset((cell, *_around(cell), *ways[0].sweep, ways[0].goal,
+                                               *ways[1].sweep, ways[1].goal))
+    return reads
+
+
 # Ranks: how far an evaluation got. A refusal reports the highest-ranked failure seen
 # during the attempt (checks run in their own order; a relay fight outranks everything
 # but a drive that was actually achieved, because it is a hardware fault).
@@ -329,8 +395,16 @@ class MotionJudge:
         # of an actuator change does not grow with the fleet.
         self._rank = {m: k for k, m in enumerate(self._mods)}
         self._trying: set[str] = set()
-        #: take :meth:`on_actuators`' short way where it applies (False: always the long one)
+        #: the quick way: deadlines in a heap and only the attempts a change can reach
+        #: re-evaluated (plus :meth:`on_actuators`' short way where nothing moves or tries
+        #: to). False: the reference long way (every deadline listed and every attempt
+        #: evaluated at every change), which gives the same outcomes. Set it before use.
         self.quick = True
+        # Quick way's bookkeeping (docs/physics.md, "Cost of a change"):
+        self._heap: list[tuple[int, int, str, str, int]] = []  # deadlines; stale ones skipped
+        self._dirty: set[str] = set()  # modules whose attempts a change may have reached
+        self._near: dict[str, tuple[str, ...]] = {}  # module -> its neighbours' ids (cache)
+        self._carriers: dict[str, int] = {}  # module -> uncarried flights its magnets hold up
 
     # --- queries ------------------------------------------------------------------
     @property
@@ -365,8 +439,13 @@ class MotionJudge:
 
     def next_deadline(self) -> int | None:
         """The next sim time at which an outcome can fall due without an actuator change."""
-        times = [t for t, _, _ in self._deadlines()]
-        return min(times) if times else None
+        if not self.quick:
+            times = [t for t, _, _ in self._deadlines()]
+            return min(times) if times else None
+        heap = self._heap
+        while heap and not self._due(heap[0]):
+            heapq.heappop(heap)
+        return heap[0][0] if heap else None
 
     # --- input --------------------------------------------------------------------
     def on_actuators(self, module: str, t_ns: int, joints_open: Sequence[bool],
@@ -376,31 +455,44 @@ class MotionJudge:
             raise KeyError(f"unknown module {module!r}")
         if len(joints_open) != 6 or len(magnets) != 6:
             raise ValueError("need six joints and six magnets")
-        if any(m not in (MAG_OFF, MAG_POS, MAG_NEG, MAG_BOTH) for m in magnets):
+        if not _MAG_VALUES.issuperset(magnets):
             raise ValueError(f"magnet values must be -1, 0, 1 or 2: {list(magnets)}")
         mod = self._mods[module]
+        mags = tuple(map(int, magnets))
         if self.quick and not self._flights and not self._trying and t_ns >= self._now:
             # Nothing moves and nobody tries to: a change that makes no magnet pair (and no
             # relay fight) can start nothing, and no other module's verdict depends on it
             # (verdicts are made for attempts only). The long way below ends the same.
-            mags = tuple(int(m) for m in magnets)
-            if MAG_BOTH not in mags and not any(mags[k - 1] == MAG_NEG and mags[k - 2] == MAG_NEG
-                                                for k in range(1, 7)):
-                mod.joints_open = tuple(bool(j) for j in joints_open)
+            if MAG_BOTH not in mags and not _pairs(mags):
+                mod.joints_open = tuple(map(bool, joints_open))
                 mod.magnets = mags
                 self._now = t_ns
                 return []
         out = self.advance(t_ns)
         old_mag = mod.magnets
-        mod.joints_open = tuple(bool(j) for j in joints_open)
-        mod.magnets = tuple(int(m) for m in magnets)
-        for s in Side:  # a relay fight is reported the moment it starts
-            if mod.magnets[s - 1] == MAG_BOTH and old_mag[s - 1] != MAG_BOTH:
-                out.append(Fault(module, t_ns, Reason.BOTH_RELAYS,
-                                 f"{module}: both relays of body side {int(s)} on",
-                                 {"body_side": int(s)}))
+        mod.joints_open = tuple(map(bool, joints_open))
+        mod.magnets = mags
+        if MAG_BOTH in mags:
+            for s in Side:  # a relay fight is reported the moment it starts
+                if mags[s - 1] == MAG_BOTH and old_mag[s - 1] != MAG_BOTH:
+                    out.append(Fault(module, t_ns, Reason.BOTH_RELAYS,
+                                     f"{module}: both relays of body side {int(s)} on",
+                                     {"body_side": int(s)}))
         self._update_attempts(mod, out)
-        self._check_carry(out)
+        if self.quick:
+            # This change reaches the verdicts of its own module and of its neighbours
+            # only: a verdict reads the state (magnets, solenoids, orientation) of the
+            # mobile and of modules beside it (substrate candidates, latches), nobody else's.
+            if module in self._carriers:
+                self._check_carry(out, module)
+            self._dirty.add(module)
+            trying = self._trying
+            near = self._near.get(module)
+            for nid in self._neighbours_of(mod) if near is None else near:
+                if nid in trying:
+                    self._dirty.add(nid)
+        else:
+            self._check_carry(out)
         self._evaluate_all(out)
         return out
 
@@ -409,22 +501,54 @@ class MotionJudge:
         if t_ns < self._now:
             raise ValueError(f"time went backwards: {t_ns} < {self._now}")
         out: list[Outcome] = []
-        while True:
-            due = [d for d in self._deadlines() if d[0] <= t_ns]
-            if not due:
-                break
-            when, kind, key = min(due, key=lambda d: (d[0], d[1], d[2]))
-            self._now = when
-            if kind == 0:
-                self._complete(self._flights[key], out)
-            elif kind == 1:
-                self._flights[key].carried = True
-            else:
-                mid, pj = key.split("/")
-                self._break_away(self._mods[mid], Joint(int(pj)), out)
-            self._evaluate_all(out)
+        if self.quick:
+            # The heap holds every deadline (pushed when a drive starts or a move breaks
+            # away) and some that lapsed (a drive broke, a move stalled): ``_due`` tells them
+            # apart, and the heap's order is the long way's min over (time, kind, key).
+            heap = self._heap
+            while heap and heap[0][0] <= t_ns:
+                d = heapq.heappop(heap)
+                if self._due(d):
+                    self._now = d[0]
+                    self._fall_due(d[1], d[3], d[4], out)
+                    self._evaluate_all(out)
+        else:
+            while True:
+                due = [d for d in self._deadlines() if d[0] <= t_ns]
+                if not due:
+                    break
+                when, kind, key = min(due, key=lambda d: (d[0], d[1], d[2]))
+                self._now = when
+                mid, _, pj = key.partition("/")
+                self._fall_due(kind, mid, int(pj or 0), out)
+                self._evaluate_all(out)
         self._now = t_ns
         return out
+
+    def _fall_due(self, kind: int, mid: str, pivot_body: int, out: list[Outcome]) -> None:
+        if kind == 0:
+            self._complete(self._flights[mid], out)
+        elif kind == 1:
+            f = self._flights[mid]
+            f.carried = True
+            self._hold(f, -1)
+        else:
+            self._break_away(self._mods[mid], Joint(pivot_body), out)
+
+    def _due(self, d: tuple[int, int, str, str, int]) -> bool:
+        """Is the heap entry ``d`` one of the long way's ``_deadlines()`` now?"""
+        when, kind, _, mid, pj = d
+        p = self.params
+        if kind == 2:
+            a = self._mods[mid].attempts.get(pj)  # type: ignore[call-overload]
+            return (a is not None and not a.done and a.drive_since is not None
+                    and a.drive_since + p.breakaway_ns == when)
+        f = self._flights.get(mid)
+        if f is None:
+            return False
+        if kind == 0:
+            return f.started_ns + p.rotation_ns == when
+        return not f.carried and f.started_ns + p.carry_ns == when
 
     def relocate(self, module: str, cell: Cell, orientation: int) -> None:
         """Put an externally driven body (a real module) where it was confirmed to be.
@@ -435,9 +559,11 @@ class MotionJudge:
             raise ValueError(f"{module} cannot be at {cell}: taken by {occupant}")
         if module in self._flights:
             raise ValueError(f"{module} is in flight")
+        before = mod.cell
         del self._at[mod.cell]
         mod.cell, mod.orientation = cell, orientation % 6
         self._at[cell] = module
+        self._placed(module, (before, cell))
 
     # --- internals ----------------------------------------------------------------
     def _deadlines(self) -> list[tuple[int, int, str]]:
@@ -461,7 +587,7 @@ class MotionJudge:
         return [self._mods[m] for m in sorted(self._trying, key=rank.__getitem__)]
 
     def _update_attempts(self, mod: _Module, out: list[Outcome]) -> None:
-        pairs = set(negative_pairs(mod.magnets))
+        pairs = _pairs(mod.magnets)
         for k in list(mod.attempts):
             if k not in pairs:  # the pair went off: the attempt is over
                 a = mod.attempts.pop(k)
@@ -485,7 +611,24 @@ class MotionJudge:
         return MoveRefused(mod.id, self._now, best.reason, best.detail, best.data)
 
     def _evaluate_all(self, out: list[Outcome]) -> None:
-        for mod in self._attempting():
+        """Evaluate the open attempts: every one (the long way), or those a change since
+        the last call reached (the quick way).
+
+        Why the quick way is the same: an evaluation is a pure function of the world
+        around the mobile (the ``_dirty`` marks below list what it reads), and its effect
+        on its attempt depends only on its verdict and the attempt's state: a verdict
+        equal to the attempt's last one changes nothing (a drive already on stays on with
+        the same plan; a refusal finds the drive already off and a ``best`` ranked at
+        least as high). An attempt whose world did not change since its last evaluation
+        would get its last verdict again, so it is skipped. Evaluations write only their
+        own attempt and emit nothing, so their order does not matter."""
+        if self.quick:
+            dirty, self._dirty = self._dirty, set()
+            mods = [self._mods[m] for m in dirty if m in self._trying]
+        else:
+            self._dirty.clear()
+            mods = self._attempting()
+        for mod in mods:
             if mod.id in self._flights:
                 continue
             for a in mod.attempts.values():
@@ -495,11 +638,65 @@ class MotionJudge:
                 if verdict.ok:
                     if a.drive_since is None:
                         a.drive_since = self._now
+                        heapq.heappush(self._heap, (self._now + self.params.breakaway_ns, 2,
+                                                    f"{mod.id}/{int(a.pivot_body)}", mod.id,
+                                                    int(a.pivot_body)))
                     a.plan = verdict.plan
                     continue
                 if a.drive_since is not None:
                     self._drive_broke(mod, a, verdict)
                 self._note(a, verdict)
+
+    # What an evaluation of a mobile at cell c reads, and the marks that keep the quick
+    # way exact: the state of modules in c and its six neighbours (magnets: substrate
+    # candidates and polarity; solenoids and orientation: latches; in flight or not:
+    # substrate still, latches), the flights whose substrate is the mobile, and what
+    # blocks its goal and sweep cells (modules, obstacles, reservations): ``_reads``. So an
+    # actuator change marks its module and the neighbours (``on_actuators``); a
+    # break-away, stall or arrival marks the mobiles that read the mover's start, goal or
+    # sweep cells (flight status, occupancy, reservations, orientation) and the substrate
+    # by name (its supporting-move check); a relocation those that read either cell.
+    def _touch(self, cells: Iterable[Cell], *modules: str) -> None:
+        """Mark for evaluation ``modules`` and every module with an open attempt whose
+        evaluation may read ``cells`` (its own cell and neighbours, the goal and sweep
+        of either direction about its pivot: ``_reads``)."""
+        dirty = self._dirty
+        dirty.update(modules)
+        cells = frozenset(cells)
+        for mid in self._trying:
+            mod = self._mods[mid]
+            for a in mod.attempts.values():
+                if not a.done and not _reads(mod.cell, Joint.of(a.pivot_body + mod.orientation)).isdisjoint(cells):
+                    dirty.add(mid)
+                    break
+
+    def _neighbours_of(self, mod: _Module) -> tuple[str, ...]:
+        """The ids of the modules beside ``mod`` (kept until a module beside it moves)."""
+        at = self._at
+        ids = self._near[mod.id] = tuple(n for c in _around(mod.cell) if (n := at.get(c)) is not None)
+        return ids
+
+    def _placed(self, module: str, cells: tuple[Cell, Cell]) -> None:
+        """``module`` went from one cell to the other: forget the neighbour lists that
+        changed, and mark the mobiles it may concern."""
+        at, near = self._at, self._near
+        near.pop(module, None)
+        for c in cells:
+            for n in _around(c):
+                nid = at.get(n)
+                if nid is not None:
+                    near.pop(nid, None)
+        self._touch(cells, module)
+
+    def _hold(self, f: _Flight, delta: int) -> None:
+        """Count ``f`` among the uncarried flights of its mover and substrate (whose
+        actuator changes alone can stall it)."""
+        for m in (f.module, f.plan.substrate):
+            n = self._carriers.get(m, 0) + delta
+            if n:
+                self._carriers[m] = n
+            else:
+                del self._carriers[m]
 
     def _drive_broke(self, mod: _Module, a: _Attempt, verdict: Verdict) -> None:
         """The drive of ``a`` broke before break-away (``verdict`` says why): a world
@@ -581,13 +778,14 @@ class MotionJudge:
         decides the direction), and the goal is then taken. Sets the substrate, the rule,
         its goal and sweep."""
         mod, j = t.mod, t.j
+        ways = _ways(mod.cell, j)
         candidates: list[tuple[Direction, _Module]] = []
-        for d in (Direction.CW, Direction.CCW):
-            occ = self._at.get(substrate_cell(mod.cell, j, d))
+        for w in ways:
+            occ = self._at.get(w.substrate)
             if occ is not None:
-                candidates.append((d, self._mods[occ]))
+                candidates.append((w.direction, self._mods[occ]))
         if not candidates:
-            cells = [str(substrate_cell(mod.cell, j, d)) for d in Direction]
+            cells = [str(w.substrate) for w in ways]
             return t.refuse(_R_SUBSTRATE, Reason.MISSING_SUBSTRATE,
                             f"no module touches pivot joint {int(j)} (cells {', '.join(cells)})",
                             cells=cells)
@@ -604,9 +802,8 @@ class MotionJudge:
                                 "no free goal", by=[s.id for _, s in candidates])
             candidates = repelling
         direction, t.sub = candidates[0]
-        t.rule = move_rule(j, direction)
-        sub_cell, t.sweep, t.goal = t.rule.cells(mod.cell)
-        assert sub_cell == t.sub.cell  # Table 4-3 and the vertex geometry agree
+        w = ways[0] if direction is Direction.CW else ways[1]
+        t.rule, t.sweep, t.goal = w.rule, w.sweep, w.goal
         return None
 
     def _substrate_still(self, t: _Trial) -> Verdict | None:
@@ -680,8 +877,8 @@ class MotionJudge:
         """Latches holding ``mod`` to its neighbours. Each shared edge (mod's global side
         s) has mod's pin at mod's vertex s+1 and the neighbour's pin at mod's vertex s."""
         found = []
-        for s in Side:
-            nid = self._at.get(mod.cell.neighbour(s))
+        for s, c in zip(Side, _around(mod.cell)):
+            nid = self._at.get(c)
             if nid is None or nid in self._flights:  # a module in flight is swinging away
                 continue
             n = self._mods[nid]
@@ -697,10 +894,16 @@ class MotionJudge:
 
     def _break_away(self, mod: _Module, pivot_body: Joint, out: list[Outcome]) -> None:
         a = mod.attempts[pivot_body]
-        verdict = self._evaluate(mod, pivot_body)
-        plan = verdict.plan
+        if self.quick and a.plan is not None and mod.id not in self._dirty:
+            # The drive is on (its last verdict was this plan) and nothing it reads changed
+            # since (every change is evaluated at once): the verdict now is that plan.
+            plan: _Plan | None = a.plan
+        else:
+            verdict = self._evaluate(mod, pivot_body)
+            plan = verdict.plan
         if plan is None:  # cannot happen: every change re-evaluates; be safe
             a.drive_since = None
+            a.plan = None
             self._note(a, verdict)
             return
         started = a.drive_since
@@ -711,9 +914,14 @@ class MotionJudge:
         participants = (mod.id, plan.substrate) + tuple(sorted(
             nid for c in mod.cell.neighbours()
             if (nid := self._at.get(c)) is not None and nid != plan.substrate))
-        self._flights[mod.id] = _Flight(mod.id, started, plan, mod.cell, pivot_body, participants)
+        f = self._flights[mod.id] = _Flight(mod.id, started, plan, mod.cell, pivot_body, participants)
         for c in (plan.goal, *plan.sweep):
             self._reserved[c] = mod.id
+        p = self.params
+        heapq.heappush(self._heap, (started + p.rotation_ns, 0, mod.id, mod.id, 0))
+        heapq.heappush(self._heap, (started + p.carry_ns, 1, mod.id, mod.id, 0))
+        self._hold(f, 1)
+        self._touch((mod.cell, plan.goal, *plan.sweep), plan.substrate)
         out.append(MoveStarted(mod.id, self._now, started, mod.cell, plan.goal,
                                plan.rule.joint, plan.rule.direction, plan.substrate))
 
@@ -723,14 +931,21 @@ class MotionJudge:
         return (all(mod.magnets[s - 1] == MAG_NEG for s in pair)
                 and sub.magnets[f.plan.attract_body - 1] == MAG_POS)
 
-    def _check_carry(self, out: list[Outcome]) -> None:
+    def _check_carry(self, out: list[Outcome], changed: str | None = None) -> None:
+        """Stall the moves whose attraction stopped before half-way: every uncarried one
+        (the long way), or those ``changed``'s magnets hold up (the quick way: a carry
+        reads the mover's and the substrate's magnets only, and held at break-away)."""
         for f in list(self._flights.values()):
-            if f.carried or self._carry_ok(f):
+            if f.carried or (changed is not None and changed not in (f.module, f.plan.substrate)):
+                continue
+            if self._carry_ok(f):
                 continue
             # the pull stopped before half-way: the module falls back to its cell
             held = self._now - f.started_ns
             del self._flights[f.module]
             self._release(f.module)
+            self._hold(f, -1)
+            self._touch((f.from_cell, f.plan.goal, *f.plan.sweep), f.plan.substrate)
             out.append(Fault(f.module, self._now, Reason.STALLED,
                              f"{f.module}: attraction stopped {held / 1e6:.1f} ms into the "
                              f"rotation (< {self.params.carry_ns / 1e6:.1f} ms): stalled, fell "
@@ -746,12 +961,16 @@ class MotionJudge:
         mod = self._mods[f.module]
         del self._flights[f.module]
         self._release(f.module)
+        if not f.carried:  # carry_ns == rotation_ns: the arrival came first
+            self._hold(f, -1)
         before = mod.orientation
         del self._at[mod.cell]
         assert f.plan.goal not in self._at  # reserved since break-away
         mod.cell = f.plan.goal
         self._at[mod.cell] = mod.id
         mod.orientation = orientation_after(before, f.plan.rule.direction)
+        self._placed(mod.id, (f.from_cell, mod.cell))
+        self._touch(f.plan.sweep, f.plan.substrate)
         out.append(MoveCompleted(mod.id, self._now, f.started_ns, f.from_cell, mod.cell,
                                  f.plan.rule.joint, f.plan.rule.direction, before,
                                  mod.orientation, f.plan.substrate, f.participants))

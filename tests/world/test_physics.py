@@ -14,8 +14,8 @@ from bus.lattice import MOVE_RULES, Cell, Direction, Joint, MoveRule, move_rule,
 from bus.timing import TICK_NS
 from module_sim.physics import (
     BREAKAWAY_NS, CARRY_NS, ROTATION_NS, Fault, ModuleSpec, MotionJudge, MoveCompleted,
-    MoveRefused, MoveStarted, Outcome, Reason, orientation_after, rotation_arguments,
-    rotation_degrees,
+    MoveRefused, MoveStarted, Outcome, PhysicsParams, Reason, orientation_after,
+    rotation_arguments, rotation_degrees,
 )
 
 # --- firmware sequences: the one table in bus.rotations (spec §7) -------------------------
@@ -321,52 +321,67 @@ def grown(steps: list[tuple[int, int]]) -> list[Cell]:
     return cells
 
 
+def episode_timelines(judge: MotionJudge, ids: list[str], ep: tuple, t0: int) -> dict[str, list[State]]:
+    """The actuator timelines of one random episode starting at ``t0``: a mover's rotation
+    sequence about a row of Table 4-3 (preferring rows with a substrate where the judge
+    has the modules now), its substrate's, Table 3-2's releases and noise. Keys name the
+    module after their last ':'."""
+    mover, row, t1, t2, t3, kind, _, noise = ep
+    mid = ids[mover % len(ids)] if mover == 5 or len(ids) == 1 else ids[1 + mover % (len(ids) - 1)]
+    occ = judge.occupancy()
+    # prefer rows that have a substrate, so that moves actually happen
+    supported = [r for r in MOVE_RULES if r.cells(judge.cell(mid))[0] in occ] or MOVE_RULES
+    rule = supported[row % len(supported)]
+    sub = occ.get(rule.cells(judge.cell(mid))[0])
+    om = judge.orientation(mid)
+    os_ = judge.orientation(sub) if sub else 0
+    mi, si = rotation_arguments(rule, om, os_)
+    cw = rule.direction is Direction.CW
+    tls: dict[str, list[State]] = {}
+    mseq = MCW if cw else MCCW
+    if kind == "release":  # Table 3-2: the mobile and its other neighbours let go
+        mseq = tuple(("open", k) for k in range(6)) + mseq
+        for c in judge.cell(mid).neighbours():
+            if (n := occ.get(c)) is not None and n != sub:
+                tls[f"release:{n}"] = [(t0, (True,) * 6, (0,) * 6),
+                                       (t0 + (t1 + t2 + 1) * TICK_NS, (False,) * 6, (0,) * 6)]
+    tls[mid] = timeline(mseq, mi, t0, t1=t1, t2=t2, t3=t3)
+    if sub and sub != mid and kind != "noise":
+        sseq = SCW if cw else (SCCW_THESIS if kind == "thesis-sccw" else SCCW_V2)
+        tls[sub] = timeline(sseq, si, t0, t1=t1, t2=t2, t3=t3)
+    for k, (nm, side, val) in enumerate(noise):
+        nid = ids[nm % len(ids)]
+        mags = tuple(val if s == side else 0 for s in range(6))
+        tls.setdefault(f"noise{k}:{nid}", []).append((t0 + (k + 3) * TICK_NS, (True,) * 6, mags))
+        tls[f"noise{k}:{nid}"].append((t0 + (k + 5) * TICK_NS, (False,) * 6, (0,) * 6))
+    return tls
+
+
+def world_specs(growth: list[tuple[int, int]], orients: list[int], obstacle: Cell
+                ) -> tuple[list[ModuleSpec], list[Cell]]:
+    """A grown cluster of modules (the first one fixed) and an obstacle outside it."""
+    cells = grown(growth)
+    obstacles = [] if obstacle in cells else [obstacle]
+    return [ModuleSpec(f"m{k}", c, orients[k % len(orients)], fixed=(k == 0))
+            for k, c in enumerate(cells)], obstacles
+
+
 @settings(max_examples=80)
 @given(growth=st.lists(st.tuples(st.integers(0, 5), st.integers(1, 6)), min_size=1, max_size=5),
        orients=st.lists(st.integers(0, 5), min_size=6, max_size=6),
        obstacle=st.sampled_from(CELLS),
        episodes=st.lists(episode, min_size=1, max_size=6))
 def test_random_actuation_never_overlaps_or_moves_the_fixed_module(growth, orients, obstacle, episodes):
-    cells = grown(growth)
-    ids = [f"m{k}" for k in range(len(cells))]
-    obstacles = [] if obstacle in cells else [obstacle]
-    specs = [ModuleSpec(i, c, orients[k], fixed=(k == 0)) for k, (i, c) in enumerate(zip(ids, cells))]
+    specs, obstacles = world_specs(growth, orients, obstacle)
+    ids = [m.id for m in specs]
     judge = MotionJudge(specs, obstacles)
-    long_way = MotionJudge(specs, obstacles)  # on_actuators without its short way: the same outcomes
+    long_way = MotionJudge(specs, obstacles)  # the reference long way: the same outcomes
     long_way.quick = False
-    fixed_cell = cells[0]
+    fixed_cell = specs[0].cell
     t_base = 0
     started: set[str] = set()
-    for mover, row, t1, t2, t3, kind, offset, noise in episodes:
-        mid = ids[mover % len(ids)] if mover == 5 or len(ids) == 1 else ids[1 + mover % (len(ids) - 1)]
-        occ = judge.occupancy()
-        # prefer rows that have a substrate, so that moves actually happen
-        supported = [r for r in MOVE_RULES if r.cells(judge.cell(mid))[0] in occ] or MOVE_RULES
-        rule = supported[row % len(supported)]
-        sub = occ.get(rule.cells(judge.cell(mid))[0])
-        om = judge.orientation(mid)
-        os_ = judge.orientation(sub) if sub else 0
-        mi, si = rotation_arguments(rule, om, os_)
-        t0 = t_base + offset * TICK_NS
-        cw = rule.direction is Direction.CW
-        extra_tls: dict[str, list[State]] = {}
-        mseq = MCW if cw else MCCW
-        if kind == "release":  # Table 3-2: the mobile and its other neighbours let go
-            mseq = tuple(("open", k) for k in range(6)) + mseq
-            for c in judge.cell(mid).neighbours():
-                if (n := occ.get(c)) is not None and n != sub:
-                    tls_n = [(t0, (True,) * 6, (0,) * 6),
-                             (t0 + (t1 + t2 + 1) * TICK_NS, (False,) * 6, (0,) * 6)]
-                    extra_tls[f"release:{n}"] = tls_n
-        tls = {mid: timeline(mseq, mi, t0, t1=t1, t2=t2, t3=t3), **extra_tls}
-        if sub and sub != mid and kind != "noise":
-            sseq = SCW if cw else (SCCW_THESIS if kind == "thesis-sccw" else SCCW_V2)
-            tls[sub] = timeline(sseq, si, t0, t1=t1, t2=t2, t3=t3)
-        for k, (nm, side, val) in enumerate(noise):
-            nid = ids[nm % len(ids)]
-            mags = tuple(val if s == side else 0 for s in range(6))
-            tls.setdefault(f"noise{k}:{nid}", []).append((t0 + (k + 3) * TICK_NS, (True,) * 6, mags))
-            tls[f"noise{k}:{nid}"].append((t0 + (k + 5) * TICK_NS, (False,) * 6, (0,) * 6))
+    for ep in episodes:
+        tls = episode_timelines(judge, ids, ep, t_base + ep[6] * TICK_NS)
         events = sorted((t, n, key.split(":")[-1], j, m) for key, tl in tls.items()
                         for n, (t, j, m) in enumerate(tl))
         for t, _, who, j, m in events:
@@ -382,6 +397,154 @@ def test_random_actuation_never_overlaps_or_moves_the_fixed_module(growth, orien
     for o in outcomes:
         check_outcome(o, started)
     check_world(judge, fixed_cell, ids[0], obstacles)
+
+
+#: episodes whose magnets stay on for up to 0.7 s: attempts stay open (refused, waiting)
+#: while other moves break away, stall and arrive around them
+held_episode = st.tuples(st.integers(0, 8), st.integers(0, 11), st.integers(0, 30),
+                         st.integers(0, 30), st.integers(0, 40),
+                         st.sampled_from(["firmware", "release", "thesis-sccw", "noise"]),
+                         st.integers(0, 60),
+                         st.lists(st.tuples(st.integers(0, 9), st.integers(0, 5),
+                                            st.sampled_from([-1, 0, 1, 2])), max_size=3))
+
+#: timings where the deadlines tie: the default, break-away at the carry, carry at the arrival
+PARAMS = [PhysicsParams(), PhysicsParams(breakaway_ns=CARRY_NS, carry_ns=CARRY_NS),
+          PhysicsParams(carry_ns=ROTATION_NS),
+          PhysicsParams(breakaway_ns=TICK_NS, carry_ns=2 * TICK_NS, rotation_ns=4 * TICK_NS)]
+
+
+@settings(max_examples=150, deadline=None)
+@given(growth=st.lists(st.tuples(st.integers(0, 8), st.integers(1, 6)), min_size=1, max_size=9),
+       orients=st.lists(st.integers(0, 5), min_size=6, max_size=6),
+       obstacle=st.sampled_from(CELLS),
+       params=st.sampled_from(PARAMS),
+       episodes=st.lists(held_episode, min_size=1, max_size=8),
+       wakes=st.lists(st.integers(0, 80), max_size=6),
+       relocations=st.lists(st.tuples(st.integers(0, 9), st.integers(1, 6), st.integers(0, 80)),
+                            max_size=2))
+def test_the_quick_way_gives_the_long_ways_outcomes(growth, orients, obstacle, params, episodes,
+                                                     wakes, relocations):
+    """Concurrent moves (episodes overlap in time), wakes between changes, relocated bodies:
+    the quick way (deadline heap, only the attempts a change reaches re-evaluated, the
+    short way) and the reference long way return the same outcomes, repr and data
+    included, at every call, and agree on the next deadline and the world after each."""
+    specs, obstacles = world_specs(growth, orients, obstacle)
+    ids = [m.id for m in specs]
+    quick, long_way = MotionJudge(specs, obstacles, params), MotionJudge(specs, obstacles, params)
+    long_way.quick = False
+    calls: list[tuple] = []  # (t, order, what, ...)
+    for k, ep in enumerate(episodes):  # all laid out on the start positions: they overlap
+        for key, tl in episode_timelines(quick, ids, ep, ep[6] * TICK_NS).items():
+            calls += [(t, (k, n), "actuators", key.split(":")[-1], j, m) for n, (t, j, m) in enumerate(tl)]
+    calls += [(w * TICK_NS + TICK_NS // 3, (-1, k), "wake") for k, w in enumerate(wakes)]
+    calls += [(w * TICK_NS, (-2, k), "relocate", ids[i % len(ids)], side)
+              for k, (i, side, w) in enumerate(relocations)]
+    for t, _, what, *arg in sorted(calls):
+        t = max(t, quick.now_ns)
+        if what == "actuators":
+            got, want = quick.on_actuators(arg[0], t, *arg[1:]), long_way.on_actuators(arg[0], t, *arg[1:])
+        elif what == "wake":
+            got, want = quick.advance(t), long_way.advance(t)
+        else:  # a real module's body put where the planner confirmed it (one cell over)
+            module, side = arg
+            cell = quick.cell(module).neighbour(side)
+            got, want = (_relocated(j, module, cell) for j in (quick, long_way))
+        assert repr(got) == repr(want)
+        assert quick.now_ns == long_way.now_ns
+        assert quick.next_deadline() == long_way.next_deadline()
+        assert quick.occupancy() == long_way.occupancy()
+        assert quick.in_flight() == long_way.in_flight()
+    end = quick.now_ns + params.rotation_ns + TICK_NS
+    assert repr(quick.advance(end)) == repr(long_way.advance(end))
+    assert {m: (quick.cell(m), quick.orientation(m)) for m in ids} == \
+        {m: (long_way.cell(m), long_way.orientation(m)) for m in ids}
+
+
+#: where racing movers start: within three cells of the origin
+NEAR = [Cell(x, y) for x in range(-3, 4) for y in range(-3, 4) if Cell(0, 0).distance(Cell(x, y)) <= 3]
+racer = st.tuples(st.sampled_from(NEAR), st.integers(0, 11),  # the mover's cell, Table 4-3 row
+                  st.integers(0, 4), st.integers(0, 8),  # start tick, t1
+                  st.integers(2, 6), st.integers(0, 12),  # t2, t3 (t2 + t3 < 10: a stall)
+                  st.booleans())  # a CCW substrate runs SCCW as in the thesis (refused)
+
+
+@settings(max_examples=200, deadline=None)
+@given(racers=st.lists(racer, min_size=2, max_size=6), params=st.sampled_from(PARAMS),
+       orients=st.lists(st.integers(0, 5), min_size=12, max_size=12))
+def test_racing_moves_end_the_same_the_quick_way(racers, params, orients):
+    """Movers a few cells apart, each with its substrate and every latch of its own
+    released, start within four ticks of each other: their goals, sweeps, substrates and
+    latches overlap, so one's break-away, stall or arrival changes what another's
+    evaluation reads. The quick way and the long way give the same outcomes."""
+    at: dict[Cell, str] = {}
+    moves = []
+    for cell, row, start, t1, t2, t3, thesis in racers:
+        rule = MOVE_RULES[row]
+        if cell in at and at[cell].startswith("s"):
+            continue  # a substrate already: not a mover too
+        mover = at.setdefault(cell, f"m{len(at)}")
+        sub_cell = rule.cells(cell)[0]
+        sub = at.setdefault(sub_cell, f"s{len(at)}")
+        moves.append((mover, sub, rule, start, t1, t2, t3, thesis))
+    specs = [ModuleSpec(m, c, orients[k % 12], fixed=(k == 1)) for k, (c, m) in enumerate(at.items())]
+    orient = {s.id: s.orientation for s in specs}
+    tls: dict[str, list[State]] = {m: [(0, (True,) * 6, (0,) * 6)] for m in orient}  # all released
+    for mover, sub, rule, start, t1, t2, t3, thesis in moves:
+        mi, si = rotation_arguments(rule, orient[mover], orient[sub])
+        cw = rule.direction is Direction.CW
+        timing = {"t1": t1, "t2": t2, "t3": t3}
+        mseq = tuple(("open", k) for k in range(6)) + (MCW if cw else MCCW)
+        tls[mover] += timeline(mseq, mi, (start + 1) * TICK_NS, **timing)
+        tls[sub] += timeline(SCW if cw else SCCW_THESIS if thesis else SCCW_V2, si,
+                             (start + 1) * TICK_NS, **timing)
+    events = sorted((t, n, mid, j, m) for mid, tl in tls.items() for n, (t, j, m) in enumerate(tl))
+    quick, long_way = MotionJudge(specs, (), params), MotionJudge(specs, (), params)
+    long_way.quick = False
+    moved = 0
+    for t, _, mid, j, m in events:
+        got = quick.on_actuators(mid, max(t, quick.now_ns), j, m)
+        assert repr(got) == repr(long_way.on_actuators(mid, max(t, long_way.now_ns), j, m))
+        assert quick.next_deadline() == long_way.next_deadline()
+        moved += sum(isinstance(o, MoveStarted) for o in got)
+    end = quick.now_ns + params.rotation_ns + TICK_NS
+    assert repr(quick.advance(end)) == repr(long_way.advance(end))
+    assert quick.occupancy() == long_way.occupancy()
+
+
+@pytest.mark.parametrize("m_start,m_t2,expect", [
+    (1, 4, [("x", MoveStarted), ("m", MoveRefused), ("x", MoveCompleted)]),  # reserved under m's drive
+    (1, 25, [("x", MoveStarted), ("x", MoveCompleted), ("m", MoveStarted), ("m", MoveCompleted)]),
+], ids=["reserved", "freed-by-arrival"])
+def test_a_move_two_cells_away_reaches_a_mobiles_sweep(m_start, m_t2, expect):
+    """x's sweep crosses (-1,-1), the far cell of m's sweep (Table 4-3's K), and nothing else
+    m's evaluation reads: x's break-away must break m's drive (refused, sweep-occupied),
+    and x's arrival must start m's waiting drive, the quick way as the long way."""
+    m_rule, x_rule = move_rule(1, "CW"), move_rule(5, "CW")
+    m_cell, x_cell = Cell(0, 0), Cell(-2, -1)
+    assert set(m_rule.cells(m_cell)[1]) & set(x_rule.cells(x_cell)[1]) == {Cell(-1, -1)}
+    specs = [ModuleSpec("m", m_cell), ModuleSpec("s", m_rule.cells(m_cell)[0], fixed=True),
+             ModuleSpec("x", x_cell), ModuleSpec("xs", x_rule.cells(x_cell)[0])]
+    tls = {"x": timeline(MCW, 5, 0, t1=0), "xs": timeline(SCW, 5, 0, t1=0),
+           "m": timeline(MCW, 1, m_start * TICK_NS, t1=2, t2=m_t2),
+           "s": timeline(SCW, 1, m_start * TICK_NS, t1=2, t2=m_t2)}
+    outcomes = []
+    for quick in (True, False):
+        judge = MotionJudge(specs)
+        judge.quick = quick
+        outcomes.append(run(judge, tls))
+    assert repr(outcomes[0]) == repr(outcomes[1])
+    assert [(o.module, type(o)) for o in outcomes[0]] == expect
+    if m_t2 == 4:
+        assert outcomes[0][1].reason is Reason.SWEEP_OCCUPIED
+
+
+def _relocated(judge: MotionJudge, module: str, cell: Cell) -> str:
+    try:
+        judge.relocate(module, cell, judge.orientation(module) + 1)
+    except ValueError as exc:
+        return str(exc)
+    return "moved"
 
 
 def check_outcome(o: Outcome, started: set[str]) -> None:
