@@ -110,6 +110,11 @@ def _samples(data: bytes) -> Iterator[tuple[int, int, int]]:
         off = nxt
 
 
+def _sample_at(data: bytes, key: bytes, start: int, end: int) -> tuple[str, bytes]:
+    """The sample of packed ``data`` in ``[start, end)`` whose key is ``key``."""
+    return key.decode(), data[start + 6 + len(key):end]
+
+
 def select_samples(data: bytes, ends: list[int], keep: Sequence[bool]) -> bytes:
     """The samples of packed ``data`` (sample ``i`` ends at ``ends[i]``) where ``keep`` is
     true, packed: runs of kept samples are copied whole."""
@@ -508,12 +513,60 @@ class Bus:
                     mine = data if all(sub in group for group in distinct) else \
                         select_samples(data, ends, [sub in group for group in routes])
                     sub.clock.post(_deliver_batch, sub, mine, order=(n, sub.index))
+        elif all(sub.batch for sub in subs):
+            self._put_batch_to_batches(unpack_batch(data), routes, distinct, data, ends)
         else:
-            self._deliver_batch(unpack_batch(data), routes, distinct, data, ends)
+            self._put_packed_by_sample(data, keys, ends, routes)
         pub = self._publishers.get(self._batch_key) or self._publisher(self._batch_key)
         if pub.matching_status.matching:
             self.put_remote(self._batch_key, data)
         self.published += len(keys)
+
+    def _put_packed_by_sample(self, data: bytes, keys: list[bytes], ends: list[int],
+                              routes: list[tuple[Subscription, ...]]) -> None:
+        """:meth:`_put_batch_by_sample` from packed bytes: only the samples a per-sample or an
+        unpacked batch handler takes are split out; a packed handler's share stays packed."""
+        def sample(i: int) -> tuple[str, bytes]:
+            return _sample_at(data, keys[i], ends[i - 1] if i else 0, ends[i])
+
+        for sub, (n, mine) in self._post_samples(len(keys), routes, sample).items():
+            share: Any
+            if not sub.packed:
+                share = [sample(i) for i in mine]
+            elif len(mine) == len(keys):
+                share = data
+            else:
+                keep = [False] * len(keys)
+                for i in mine:
+                    keep[i] = True
+                share = select_samples(data, ends, keep)
+            sub.clock.post(_deliver_batch, sub, share, order=(n, sub.index))
+
+    def _post_samples(self, count: int, routes: list[tuple[Subscription, ...]],
+                      sample: Callable[[int], tuple[str, bytes]]) -> dict[Subscription, tuple[int, list[int]]]:
+        """Each sample ``sample(i)`` of a batch to its per-sample handlers, in publish order,
+        as from put (split out only for them); the batch handlers' shares (their numbers,
+        where the first stands), for the caller to post whole (a wall clock's thread may take
+        a post at once)."""
+        order = self._hub.order
+        groups: dict[Subscription, tuple[int, list[int]]] = {}
+        for i in range(count):
+            subs = routes[i]
+            if not subs:
+                continue
+            n = next(order)
+            item = None
+            for sub in subs:
+                if sub.batch:
+                    group = groups.get(sub)
+                    if group is None:
+                        group = groups[sub] = (n, [])
+                    group[1].append(i)
+                else:
+                    if item is None:
+                        item = sample(i)
+                    sub.clock.post(_deliver, sub, item[0], item[1], order=(n, sub.index))
+        return groups
 
     def _deliver_batch(self, items: Samples, routes: list[tuple[Subscription, ...]],
                        distinct: set[tuple[Subscription, ...]], data: bytes | None, ends: list[int] | None) -> None:
@@ -550,25 +603,11 @@ class Bus:
                              data: bytes | None) -> None:
         """Per-sample handlers among them: each sample in publish order, as from put; a batch
         handler's samples in one post, where its first sample stands."""
-        order = self._hub.order
-        groups: dict[Subscription, tuple[int, list[tuple[str, bytes]]]] = {}
-        for item, subs in zip(items, routes):
-            if not subs:
-                continue
-            n = next(order)
-            for sub in subs:
-                if sub.batch:
-                    group = groups.get(sub)
-                    if group is None:
-                        group = groups[sub] = (n, [])
-                    group[1].append(item)
-                else:
-                    sub.clock.post(_deliver, sub, item[0], item[1], order=(n, sub.index))
-        for sub, (n, group) in groups.items():  # whole: a wall clock's thread may take it at once
-            mine: Any = group
+        for sub, (n, mine) in self._post_samples(len(items), routes, items.__getitem__).items():
+            share: Any = [items[i] for i in mine]
             if sub.packed:
-                mine = data if data is not None and len(group) == len(items) else pack_batch(group)
-            sub.clock.post(_deliver_batch, sub, mine, order=(n, sub.index))
+                share = data if data is not None and len(mine) == len(items) else pack_batch(share)
+            sub.clock.post(_deliver_batch, sub, share, order=(n, sub.index))
 
     def put_remote(self, key: str, payload: bytes) -> None:
         """Publish to other processes only (what :meth:`put` does after the local delivery;

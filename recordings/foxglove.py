@@ -130,6 +130,15 @@ class SceneView:
             return None
         return self.feed(value, t_ns)
 
+    def placed_look(self, name: str) -> tuple[Any, ...] | None:
+        """What a placed module's entity shows apart from its coils (None: unknown or not placed)."""
+        m = self.modules.get(name)
+        return None if m is None or m.placement is None else (m.name, m.placement, m.fixed, m.real, m.moving)
+
+    def entity_rest(self, name: str) -> bytes:
+        """A placed module's entity encoded after its timestamp, as its updates carry it now."""
+        return _entity_rest(_look(self.modules[name]))
+
     def snapshot(self, t_ns: int) -> bytes:
         """Every module and the goal, as they are now."""
         entities = [self._entity(m, t_ns) for m in self.modules.values() if m.placement is not None]

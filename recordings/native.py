@@ -41,7 +41,7 @@ HERE = Path(__file__).resolve().parent / "native"
 LIB_PATH = HERE / "build" / "libframebatch.so"
 #: fb_frames's and fb_packed's answers (framebatch.c)
 (DONE, NOT_FRAME, NEW_CHANNEL, NEW_LOG_CHANNEL, REST_MISS, CHUNK_FULL, OUT_FULL, GROW_SEQS, NEW_KEY, PYTHON,
- BAD_BATCH, COILS) = range(12)
+ BAD_BATCH, COILS, NEW_SCENE_CHANNEL) = range(13)
 #: how fb_packed writes the samples of a key (framebatch.c FB_KEY_*)
 KEY_PYTHON, KEY_FRAME, KEY_RECORD, KEY_FAST, KEY_EVENT = range(5)
 _p = ctypes.c_void_p
@@ -61,7 +61,8 @@ class _Batch(ctypes.Structure):
                 ("head_at", _i64), ("head_len", _i64), ("kind_at", _i64), ("kind_len", _i64),
                 ("log_time", _i64), ("recs", _p), ("records", _i64),
                 ("packed", ctypes.c_char_p), ("packed_len", _i64), ("pos", _i64), ("key_id", _i64), ("samples", _i64),
-                ("keys", _p), ("kinds", _p), ("events", _i64)]
+                ("keys", _p), ("kinds", _p), ("events", _i64),
+                ("scene_cid", _i32), ("scene_rest", _p), ("scene_rest_len", _i64)]
 
 
 def _build() -> None:
@@ -113,6 +114,12 @@ def _load() -> Any:
     lib.fb_kind_counts.restype = _i64
     lib.fb_describe_put.argtypes = [_p, ctypes.c_char_p, _i64, ctypes.c_char_p, _i32]
     lib.fb_describe_put.restype = ctypes.c_int
+    lib.fb_scene_look.argtypes = [_p, _i32, _i32]
+    lib.fb_scene_look.restype = ctypes.c_int
+    lib.fb_scene_put.argtypes = [_p, _i32, ctypes.c_char_p, _i64, ctypes.c_char_p, _i32]
+    lib.fb_scene_put.restype = ctypes.c_int
+    lib.fb_scene_changed.argtypes = [_p, _p, _p, _p, _p, _i64]
+    lib.fb_scene_changed.restype = _i64
     lib.fb_packed.argtypes = [ctypes.POINTER(_Batch)]
     lib.fb_packed.restype = ctypes.c_int
     return lib
@@ -180,6 +187,8 @@ class FrameBatch:
         self.ix: tuple[array, array, array] = (array("i"), array("q"), array("q"))
         self.nkeys = 0
         self._line = ctypes.create_string_buffer(1024)
+        self._changed = (array("i", bytes(4 * 1024)), array("q", bytes(8 * 1024)), array("Q", bytes(8 * 1024)),
+                         array("i", bytes(4 * 1024)))
 
     def __del__(self) -> None:
         for name, free in (("rests", "fb_table_free"), ("records", "fb_records_free"), ("keys", "fb_keys_free"),
@@ -243,6 +252,30 @@ class FrameBatch:
             got[raw[i:j].decode()] = int.from_bytes(raw[j + 1:j + 9], "little")
             i = j + 9
         return got
+
+    def scene_look(self, cid: int, look: int) -> None:
+        """The look of channel ``cid``'s module apart from its coils: a number (> 0) that stands
+        for it, -1 not placed (drawn nowhere), 0 unknown (its next coil change is Python's)."""
+        if self.lib.fb_scene_look(self.records, cid, look) != 0:
+            raise MemoryError("fb_scene_look")
+
+    def scene_put(self, look: int, record: bytes, rest: bytes) -> None:
+        """``rest`` draws ``look`` with ``record``'s coils: C writes the scene's update of the
+        next such coil change itself."""
+        if self.lib.fb_scene_put(self.records, look, record, len(record), rest, len(rest)) < 0:
+            raise MemoryError("fb_scene_put")
+
+    def scene_changed(self) -> list[tuple[int, int, bytes]]:
+        """``(channel, sim time, tail)`` of the last record of each channel whose coils C
+        changed since the last call (the scene's module must take it)."""
+        cids, sims, tails, lens = self._changed
+        got: list[tuple[int, int, bytes]] = []
+        while True:
+            n = self.lib.fb_scene_changed(self.records, _address(cids), _address(sims), _address(tails),
+                                          _address(lens), len(cids))
+            got += [(cids[i], sims[i], ctypes.string_at(tails[i], lens[i])) for i in range(n)]
+            if n < len(cids):
+                return got
 
     def run_packed(self) -> int:
         return self.lib.fb_packed(ctypes.byref(self.state))

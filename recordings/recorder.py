@@ -50,6 +50,7 @@ from . import meta as meta_mod
 from . import native
 from .foxglove import FoxgloveView, timestamp_field
 from .lines import describe
+from .foxglove import SCENE_TOPICS
 from .schemas import BUS_EVENT, FRAME, IR_LIGHT, LOG_TOPIC, RECORDER_ERROR_TOPIC, SCENE_TOPIC, UNTYPED, kind_of
 from .sink import CHUNK_SIZE, McapSink
 from .stats import Tally, kind_field
@@ -84,6 +85,19 @@ _KIND_NAMES: dict[bytes, str] = {}  # a frame kind's bytes -> its name
 _ACTUATORS = "world/actuators/"  # the records the C batch path writes too, once seen here
 _PLAIN = re.compile(r"[ !#-.0-\[\]-~]+")  # printable ASCII but quote, backslash and slash: JSON as it is
 _BATCH_ITEM = struct.Struct("<HI")  # a packed sample's key and payload lengths (bus.transport.pack_batch)
+
+
+def _tail_record(tail: bytes, module: str, sim: int) -> dict[str, Any]:
+    """The decoded actuator record of ``module`` at ``sim`` whose bytes after its time are
+    ``tail`` (a tail C knows: a valid record's), its tail decoded once for every module."""
+    template = _TAILS.get(tail)
+    if template is None:
+        if len(_TAILS) >= _RECORDS_SEEN:
+            _TAILS.clear()
+        template = _TAILS[tail] = _decode('{"module":"","sim_time_ns":0' + tail.decode())
+    obj = dict(template)
+    obj["module"], obj["sim_time_ns"] = module, sim
+    return obj
 
 
 def _kind_name(raw: bytes) -> str:
@@ -221,6 +235,8 @@ class Recorder:
         self._key_topics: list[str] = []  # by key number in the C key table (write_packed)
         self._key_events: list[bool] = []  # whether the key's samples are events (counted by kind)
         self._topic_keys: dict[str, list[int]] = {}  # topic -> its keys' numbers
+        self._looks: dict[tuple[Any, ...], int] = {}  # a placed module's look but its coils -> its number in C
+        self._act_modules: dict[int, str] = {}  # an actuator channel's id -> its module
         # its frames counted by key, not yet in the open part's tally (see _fold)
         self._pending: Counter[str] = Counter()
         self._pending_noise: Counter[str] = Counter()
@@ -549,6 +565,8 @@ class Recorder:
                 self._sink.writer.close_chunk()
             elif code == native.NEW_LOG_CHANNEL:
                 self._cids[LOG_TOPIC] = self._sink.channel(LOG_TOPIC)
+            elif code == native.NEW_SCENE_CHANNEL:
+                self._cids[SCENE_TOPIC] = self._sink.channel(SCENE_TOPIC)
             elif code == native.NEW_CHANNEL:
                 topic = self._key_topics[st.key_id]
                 cid = self._cids.get(topic)
@@ -595,6 +613,7 @@ class Recorder:
         st.chunk_bytes, st.chunk_messages, st.chunk_start, st.chunk_end = sink.writer.chunk_state
         st.seqs, st.nseqs = sink.sequences.buffer_info()
         st.log_cid = -1 if self._fox is None else self._cids.get(LOG_TOPIC, 0)
+        st.scene_cid = -1 if self._fox is None else self._cids.get(SCENE_TOPIC, 0)
         st.rests, st.limit = fb.rests, self.chunk_size
         if len(fb.ix[0]) < fb.PACKED_INDEX:
             fb.prepare(fb.PACKED_INDEX // 2)
@@ -627,20 +646,49 @@ class Recorder:
         m = _SIM_TIME.search(payload)  # the head's (C checked: the only one)
         assert m is not None
         sim = int(m.group(1))
-        tail = payload[m.end(1):]
-        template = _TAILS.get(tail)
-        if template is None:
-            if len(_TAILS) >= _RECORDS_SEEN:
-                _TAILS.clear()
-            template = _TAILS[tail] = _decode('{"module":"","sim_time_ns":0' + tail.decode())
-        obj = dict(template)
-        obj["module"], obj["sim_time_ns"] = topic[len(_ACTUATORS):], sim
+        name = topic[len(_ACTUATORS):]
+        obj = _tail_record(payload[m.end(1):], name, sim)
         log_time = wall if self.time_source == "wall" else self._origin + sim
         if self._fox is not None:
-            update = self._fox.scene.feed_record(topic, obj, log_time)
+            self._scene_sync()
+            scene = self._fox.scene
+            update = scene.feed_record(topic, obj, log_time)
             if update is not None:
                 self._derived(SCENE_TOPIC, update, log_time)
+                placed = scene.placed_look(name)
+                if placed is not None:  # C draws this look with these coils from now on
+                    fb = self._native
+                    assert fb is not None
+                    fb.scene_put(self._looks.setdefault(placed, len(self._looks) + 1), payload, scene.entity_rest(name))
+            self._push_look(name)
         self._record_seen(key, topic, payload, obj, sim)
+
+    def _scene_sync(self) -> None:
+        """The scene's modules take the last records of the coil changes C wrote since the last
+        call (it draws them, or finds them not placed), before Python reads or feeds the scene."""
+        fb = self._native
+        if fb is None or self._fox is None:
+            return
+        changed = fb.scene_changed()
+        if changed:
+            modules = self._fox.scene.modules
+            for cid, sim, tail in changed:
+                name = self._act_modules[cid]
+                modules[name].actuators = kind_of(_ACTUATORS + name).decode(_tail_record(tail, name, sim))
+
+    def _push_look(self, name: str) -> None:
+        """Tell C the look of module ``name`` apart from its coils, as the scene has it now."""
+        cid = self._cids.get(_ACTUATORS + name)
+        fb = self._native
+        if cid is None or fb is None or self._fox is None:
+            return
+        scene = self._fox.scene
+        placed = scene.placed_look(name)
+        self._act_modules[cid] = name
+        if placed is not None:
+            fb.scene_look(cid, self._looks.setdefault(placed, len(self._looks) + 1))
+        else:
+            fb.scene_look(cid, -1 if name in scene.modules else 0)
 
     def _new_key(self, fb: native.FrameBatch, key: str) -> None:
         """Enter a key in C's key table: how its samples are written there, on which channel."""
@@ -784,6 +832,7 @@ class Recorder:
         fb = self._native
         assert fb is not None
         cid = self._cids[topic]
+        self._act_modules[cid] = topic[len(_ACTUATORS):]
         module = obj.get("module") if isinstance(obj, dict) else None
         if self._fox is not None:
             m = self._fox.scene.modules.get(module) if isinstance(module, str) else None
@@ -791,6 +840,9 @@ class Recorder:
             if (act is None or topic != f"{_ACTUATORS}{module}" or act.magnets != obj.get("magnets")
                     or act.joints_open != obj.get("joints_open")):
                 fb.forget_coils(cid)
+                own = self._cids.get(f"{_ACTUATORS}{module}") if isinstance(module, str) else None
+                if own is not None and own != cid:  # the scene took another channel's module's coils
+                    fb.forget_coils(own)
                 return
         # its head as the fleet writes it: then its tail means the same after any module's head
         known = (sim is not None and "wall_time_ns" not in obj and isinstance(module, str)
@@ -846,9 +898,17 @@ class Recorder:
     def _derive(self, topic: str, payload: bytes, log_time: int, **known: Any) -> None:
         """The sample's Foxglove message, if it leads to one (under the lock)."""
         assert self._fox is not None
+        scene = self._native is not None and topic.startswith(SCENE_TOPICS)
+        if scene:
+            self._scene_sync()
         out = self._fox.derive(topic, payload, log_time, **known)
         if out is not None:
             self._derived(*out, log_time)
+        if scene:  # the module's look may have changed (placed, fixed, moving): C's copy too
+            obj = known.get("obj")
+            module = obj.get("module") if isinstance(obj, dict) else None
+            if isinstance(module, str):
+                self._push_look(module)
 
     def _derived(self, topic: str, data: bytes, log_time: int) -> None:
         """A message of the recorder's own (not a bus sample: not in the tally)."""
@@ -860,6 +920,7 @@ class Recorder:
     def _snapshot(self) -> None:
         """The whole scene, at the latest time written: each part ends on (and a reader of the
         last scene message finds) every module where it is."""
+        self._scene_sync()
         if self._fox is not None and self._fox.scene.modules:
             t = max((x for x in (self._part.last_ns, self._done.last_ns) if x is not None), default=0)
             self._derived(SCENE_TOPIC, self._fox.scene.snapshot(t), t)
@@ -888,6 +949,7 @@ class Recorder:
         self._cids = {}  # channel ids are per file
         self._frame_cids = _NoChannel()
         self._native_live = False
+        self._act_modules = {}
         if getattr(self, "_native", None) is not None:
             self._native.reset_records()
         return sink

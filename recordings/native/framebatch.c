@@ -22,7 +22,7 @@
 
 enum {
     FB_DONE = 0, FB_NOT_FRAME = 1, FB_NEW_CHANNEL = 2, FB_NEW_LOG_CHANNEL = 3, FB_REST_MISS = 4,
-    FB_CHUNK_FULL = 5, FB_OUT_FULL = 6, FB_GROW_SEQS = 7,
+    FB_CHUNK_FULL = 5, FB_OUT_FULL = 6, FB_GROW_SEQS = 7, FB_NEW_SCENE_CHANNEL = 12,
 };
 
 #define MESSAGE_HEADER 31 /* opcode, record length, channel, sequence, log time, publish time */
@@ -40,7 +40,7 @@ typedef struct {
 } slot_t;
 
 /* What a table entry is: the tables of Log lines (rests) and of records share one layout. */
-enum { TAG_LOG = 0, TAG_TAIL = -2, TAG_KEY = -3, TAG_KIND = -4, TAG_DESCRIBE = -5 };
+enum { TAG_LOG = 0, TAG_TAIL = -2, TAG_KEY = -3, TAG_KIND = -4, TAG_DESCRIBE = -5, TAG_SCENE = -6 };
 
 typedef struct {
     slot_t *slots;
@@ -164,6 +164,14 @@ int64_t fb_table_get(table_t *t, const uint8_t *head, int32_t hl, const uint8_t 
     return s->rest_len;
 }
 
+/* realloc field to cap elements, or return -1 (out of memory) */
+#define GROW(field, cap)                                                   \
+    do {                                                                   \
+        void *grown_ = realloc((void *)(field), (size_t)(cap) * sizeof *(field)); \
+        if (!grown_) return -1;                                            \
+        (field) = grown_;                                                  \
+    } while (0)
+
 /* ---- the batch ---------------------------------------------------------------------------- */
 typedef struct {
     /* the samples: payload i is buf[offs[i]:offs[i+1]], its frame channel cids[i] (0: none yet) */
@@ -202,6 +210,11 @@ typedef struct {
     struct keys *keys;
     table_t *kinds;
     int64_t events;
+    /* foxglove/scene's channel (0: not registered yet, -1: no scene); a coil change's scene
+     * message waiting behind a full chunk (phase 2) */
+    int32_t scene_cid;
+    const uint8_t *scene_rest;
+    int64_t scene_rest_len;
 } batch_t;
 
 static int lit_n(const uint8_t *p, int64_t n, int64_t *i, const char *s, size_t k) {
@@ -262,6 +275,16 @@ typedef struct records {
     int32_t *coils_len;
     uint8_t **heads; /* by channel id: {"module":"<its module>","sim_time_ns": once Python saw it */
     int32_t *heads_len;
+    /* the scene, by channel id: the look of the channel's module apart from its coils (0: the
+     * next coil change is Python's, -1: not placed, drawn nowhere); the last record written
+     * here (its tail in known, its time) since Python last asked (changed) */
+    int32_t *look;
+    const uint8_t **last_tail;
+    int32_t *last_tail_len;
+    int64_t *last_sim;
+    int32_t *changed, *listed; /* the channels changed (each listed once) */
+    int64_t nchanged;
+    table_t scene; /* (look, coils) -> the entity's encoding after its timestamp (TAG_SCENE) */
     int64_t ncoils;
 } records_t;
 
@@ -270,7 +293,9 @@ records_t *fb_records_new(void) {
     if (!r) return NULL;
     r->known.cap = 1024;
     r->known.slots = calloc((size_t)r->known.cap, sizeof(slot_t));
-    if (!r->known.slots) { free(r); return NULL; }
+    r->scene.cap = 1024;
+    r->scene.slots = calloc((size_t)r->scene.cap, sizeof(slot_t));
+    if (!r->known.slots || !r->scene.slots) { free(r->known.slots); free(r->scene.slots); free(r); return NULL; }
     return r;
 }
 
@@ -283,6 +308,9 @@ void fb_records_free(records_t *r) {
     free(r->coils_len);
     free(r->heads);
     free(r->heads_len);
+    free(r->look); free(r->last_tail); free(r->last_tail_len); free(r->last_sim); free(r->changed); free(r->listed);
+    table_clear(&r->scene);
+    free(r->scene.slots);
     free(r);
 }
 
@@ -324,29 +352,35 @@ int fb_record_seen(records_t *r, int32_t cid, const uint8_t *p, int64_t n, int32
     if (cid <= 0) return 0;
     if (cid >= r->ncoils) {
         int64_t cap = cid * 2 + 16;
-        uint8_t **c = realloc(r->coils, (size_t)cap * sizeof *c);
-        if (!c) return -1;
-        r->coils = c;
-        int32_t *l = realloc(r->coils_len, (size_t)cap * sizeof *l);
-        if (!l) return -1;
-        r->coils_len = l;
-        uint8_t **h = realloc(r->heads, (size_t)cap * sizeof *h);
-        if (!h) return -1;
-        r->heads = h;
-        int32_t *hl = realloc(r->heads_len, (size_t)cap * sizeof *hl);
-        if (!hl) return -1;
-        r->heads_len = hl;
-        for (int64_t i = r->ncoils; i < cap; i++) { r->coils[i] = r->heads[i] = NULL; r->coils_len[i] = r->heads_len[i] = 0; }
+        GROW(r->coils, cap);
+        GROW(r->coils_len, cap);
+        GROW(r->heads, cap);
+        GROW(r->heads_len, cap);
+        GROW(r->look, cap);
+        GROW(r->last_tail, cap);
+        GROW(r->last_tail_len, cap);
+        GROW(r->last_sim, cap);
+        GROW(r->changed, cap);
+        GROW(r->listed, cap);
+        for (int64_t i = r->ncoils; i < cap; i++) {
+            r->coils[i] = r->heads[i] = NULL;
+            r->coils_len[i] = r->heads_len[i] = r->look[i] = r->last_tail_len[i] = r->listed[i] = 0;
+            r->last_tail[i] = NULL;
+            r->last_sim[i] = -1;
+        }
         r->ncoils = cap;
     }
     free(r->coils[cid]);
     r->coils[cid] = NULL;
+    r->last_sim[cid] = -1; /* Python's record is the scene's now */
     int64_t at, len;
     uint64_t sim;
     const uint8_t *coils;
     int64_t coils_len;
-    if (!record_time(p, n, &at, &len, &sim) || !record_coils(p + at + len, n - at - len, &coils, &coils_len))
+    if (!record_time(p, n, &at, &len, &sim) || !record_coils(p + at + len, n - at - len, &coils, &coils_len)) {
+        r->look[cid] = 0; /* its next record is Python's, scene and all */
         return 0;
+    }
     r->coils[cid] = malloc((size_t)coils_len + 1);
     if (!r->coils[cid]) return -1;
     memcpy(r->coils[cid], coils, (size_t)coils_len);
@@ -424,6 +458,21 @@ static int room(batch_t *b, int64_t len) {
 
 #define RECORD_CHUNK_FULL 100
 #define RECORD_COILS 101
+#define RECORD_SCENE_NEXT 102
+
+/* SceneView._one: a SceneUpdate of one entity (field 2) whose encoding is the timestamp, then
+ * the rest (scene_rest); 1 if the chunk is full after it. */
+static int scene_message(batch_t *b) {
+    uint8_t head[48];
+    int ts_len = timestamp_field(head + 12, (uint64_t)b->log_time);
+    uint8_t pre[16];
+    int k = 0;
+    pre[k++] = 0x12;
+    k += varint(pre + k, (uint64_t)(ts_len + b->scene_rest_len));
+    memmove(head + 12 - k, pre, (size_t)k);
+    return message(b, b->scene_cid, (uint64_t)b->log_time, (uint64_t)b->log_time, head + 12 - k, k + ts_len,
+                   b->scene_rest, b->scene_rest_len);
+}
 /* A record Python wrote before but its time, with the channel's coils: written (0, or
  * RECORD_CHUNK_FULL if the chunk is full after it), or FB_NOT_FRAME (Python's), or what
  * Python must do first. With coils: the same record with other coils than the channel's last
@@ -444,9 +493,26 @@ static int record(batch_t *b, int32_t cid, const uint8_t *p, int64_t n, int coil
     int same = r->coils[cid] && record_coils(tail, tl, &coils, &coils_len) && coils_len == r->coils_len[cid] &&
                memcmp(coils, r->coils[cid], (size_t)coils_len) == 0;
     if (!same && !coils_too) return FB_NOT_FRAME;
-    if (!table_get(&r->known, tail, (int32_t)tl, (const uint8_t *)"", 0, TAG_TAIL)) return FB_NOT_FRAME;
+    slot_t *known = table_get(&r->known, tail, (int32_t)tl, (const uint8_t *)"", 0, TAG_TAIL);
+    if (!known) return FB_NOT_FRAME;
     if (cid >= b->nseqs) return FB_GROW_SEQS;
     if (!room(b, n)) return FB_OUT_FULL;
+    /* a coil change C draws: the module's look is known here and its entity with these coils */
+    slot_t *drawn = NULL;
+    int look = !same && r->look[cid] != 0 && b->packed && record_coils(tail, tl, &coils, &coils_len);
+    if (look && r->look[cid] > 0) {
+        uint8_t key[512];
+        if (coils_len + 4 > (int64_t)sizeof key) look = 0;
+        else {
+            memcpy(key, &r->look[cid], 4);
+            memcpy(key + 4, coils, (size_t)coils_len);
+            drawn = table_get(&r->scene, key, (int32_t)(coils_len + 4), (const uint8_t *)"", 0, TAG_SCENE);
+            if (!drawn) look = 0;
+            else if (b->scene_cid == 0) return FB_NEW_SCENE_CHANNEL;
+            else if (b->scene_cid < 0 || b->scene_cid >= b->nseqs) look = 0;
+            else if (!room(b, n + MESSAGE_HEADER + 32 + drawn->rest_len) || b->ix_len + 2 > b->ix_cap) return FB_OUT_FULL;
+        }
+    }
     int64_t log_time = b->by_sim ? b->origin + (int64_t)sim : b->wall;
     if ((int64_t)sim > b->last_sim) b->last_sim = (int64_t)sim;
     b->frames++;
@@ -457,7 +523,27 @@ static int record(batch_t *b, int32_t cid, const uint8_t *p, int64_t n, int coil
     /* no wall_time_ns in it (Python knew these bytes): published at the batch's receive time;
      * after a coil change Python closes a full chunk before it writes the scene's message */
     int full = message(b, cid, (uint64_t)log_time, (uint64_t)b->wall, p, n, NULL, 0);
-    return !same ? RECORD_COILS : full ? RECORD_CHUNK_FULL : 0;
+    if (!same && !look) return RECORD_COILS;
+    if (!same) { /* the channel's coils and last record are these now; the scene's update follows */
+        uint8_t *copy = malloc((size_t)coils_len + 1);
+        if (!copy) return -1;
+        memcpy(copy, coils, (size_t)coils_len);
+        free(r->coils[cid]);
+        r->coils[cid] = copy;
+        r->coils_len[cid] = (int32_t)coils_len;
+        if (!r->listed[cid]) { r->listed[cid] = 1; r->changed[r->nchanged++] = cid; }
+        r->last_tail[cid] = known->key;
+        r->last_tail_len[cid] = known->head_len;
+        r->last_sim[cid] = (int64_t)sim;
+        if (drawn) {
+            b->scene_rest = drawn->rest;
+            b->scene_rest_len = drawn->rest_len;
+            b->log_time = log_time;
+            if (full) return RECORD_SCENE_NEXT;
+            return scene_message(b) ? RECORD_CHUNK_FULL : 0;
+        }
+    }
+    return full ? RECORD_CHUNK_FULL : 0;
 }
 
 int fb_frames(batch_t *b) {
@@ -519,6 +605,50 @@ int fb_frames(batch_t *b) {
     return FB_DONE;
 }
 
+/* The look of channel cid's module apart from its coils (SceneView's), as Python knows it now:
+ * look > 0 one Python numbered, -1 not placed, 0 unknown (the next coil change is Python's). */
+int fb_scene_look(records_t *r, int32_t cid, int32_t look) {
+    if (cid <= 0) return 0;
+    if (cid >= r->ncoils && fb_record_seen(r, cid, (const uint8_t *)"", 0, 0) != 0) return -1;
+    r->look[cid] = look;
+    return 0;
+}
+
+/* The entity's encoding after its timestamp for look with the coils of record p (Python drew
+ * it); 0, or -1 out of memory (1: p has no coils). */
+int fb_scene_put(records_t *r, int32_t look, const uint8_t *p, int64_t n, const uint8_t *rest, int32_t rl) {
+    int64_t at, len;
+    uint64_t sim;
+    const uint8_t *coils;
+    int64_t coils_len;
+    if (!record_time(p, n, &at, &len, &sim) || !record_coils(p + at + len, n - at - len, &coils, &coils_len) ||
+        coils_len + 4 > 512)
+        return 1;
+    uint8_t key[512];
+    memcpy(key, &look, 4);
+    memcpy(key + 4, coils, (size_t)coils_len);
+    return table_put_tag(&r->scene, key, (int32_t)(coils_len + 4), (const uint8_t *)"", 0, rest, rl, TAG_SCENE) ? 0
+                                                                                                                   : -1;
+}
+
+/* The channels whose coils changed here since the last call: their ids, last records' times
+ * and tails (pointer, length), at most max of them (the rest at the next call); how many. */
+int64_t fb_scene_changed(records_t *r, int32_t *cids, int64_t *sims, const uint8_t **tails, int32_t *lens,
+                         int64_t max) {
+    int64_t m = 0, i = 0;
+    for (; i < r->nchanged && m < max; i++) {
+        int32_t cid = r->changed[i];
+        r->listed[cid] = 0;
+        if (r->last_sim[cid] < 0) continue; /* Python wrote the channel since */
+        cids[m] = cid; sims[m] = r->last_sim[cid]; tails[m] = r->last_tail[cid]; lens[m] = r->last_tail_len[cid];
+        r->last_sim[cid] = -1;
+        m++;
+    }
+    memmove(r->changed, r->changed + i, (size_t)(r->nchanged - i) * sizeof *r->changed);
+    r->nchanged -= i;
+    return m;
+}
+
 /* ==== packed batches (Recorder.write_packed) ================================================
  *
  * fb_packed() writes a batch in bus.transport.pack_batch's bytes: per sample, its key's entry in
@@ -562,18 +692,10 @@ void fb_keys_free(keys_t *k) {
 int64_t fb_key_put(keys_t *k, const uint8_t *key, int32_t len, int32_t cls, int32_t cid) {
     if (k->n == k->cap) {
         int64_t cap = k->cap * 2 + 64;
-        int32_t *a = realloc(k->cls, (size_t)cap * sizeof *a);
-        if (!a) return -1;
-        k->cls = a;
-        int32_t *c = realloc(k->cid, (size_t)cap * sizeof *c);
-        if (!c) return -1;
-        k->cid = c;
-        int64_t *d = realloc(k->count, (size_t)cap * sizeof *d);
-        if (!d) return -1;
-        k->count = d;
-        int64_t *e = realloc(k->noise, (size_t)cap * sizeof *e);
-        if (!e) return -1;
-        k->noise = e;
+        GROW(k->cls, cap);
+        GROW(k->cid, cap);
+        GROW(k->count, cap);
+        GROW(k->noise, cap);
         k->cap = cap;
     }
     slot_t *s = table_put_tag(&k->t, key, len, (const uint8_t *)"", 0, (const uint8_t *)"", 0, TAG_KEY);
@@ -977,12 +1099,25 @@ int fb_packed(batch_t *b) {
         int32_t cls = keys->cls[id], cid = keys->cid[id];
         if (cls == FB_KEY_PYTHON) return FB_PYTHON;
         if (cls == FB_KEY_RECORD) {
+            if (b->phase == 2) { /* its record is written, its scene message was behind a full chunk */
+                if (!room(b, MESSAGE_HEADER + 32 + b->scene_rest_len)) return FB_OUT_FULL;
+                b->phase = 0;
+                b->pos = next;
+                b->samples++;
+                if (scene_message(b)) return FB_CHUNK_FULL;
+                continue;
+            }
             if (cid == 0) {
                 if (b->phase) return -1;
                 return FB_NEW_CHANNEL;
             }
             int code = record(b, cid, p, n, 1);
             if (code == FB_NOT_FRAME) return FB_PYTHON;
+            if (code == RECORD_SCENE_NEXT) {
+                keys->count[id]++;
+                b->phase = 2;
+                return FB_CHUNK_FULL;
+            }
             if (code != 0 && code != RECORD_CHUNK_FULL && code != RECORD_COILS) return code;
             keys->count[id]++;
             b->item = b->pos;

@@ -89,11 +89,15 @@ def test_put_packed_does_what_put_batch_does_for_every_handler():
     assert [e for e in log if e[0] == "world"] == [("world", [_items("packed-local", 40)[3]])]
 
 
-def test_packed_handlers_alone_get_the_bytes_as_they_were_put(monkeypatch):
+def _refuse_unpacking(monkeypatch) -> None:
     def refuse(data):
-        raise AssertionError("unpacked with only packed handlers subscribed")
+        raise AssertionError("a batch unpacked whole")
 
     monkeypatch.setattr(transport, "unpack_batch", refuse)
+
+
+def test_packed_handlers_alone_get_the_bytes_as_they_were_put(monkeypatch):
+    _refuse_unpacking(monkeypatch)
     clock = VirtualClock()
     bus = Bus(clock, "packed-only", options=SessionOptions(isolated=True))
     try:
@@ -110,6 +114,23 @@ def test_packed_handlers_alone_get_the_bytes_as_they_were_put(monkeypatch):
         with pytest.raises(ValueError):
             bus.put_packed(data[:-1])
         assert bus.published == 30
+    finally:
+        bus.close()
+
+
+def test_put_packed_splits_out_only_the_samples_a_sample_handler_takes(monkeypatch):
+    _refuse_unpacking(monkeypatch)
+    clock = VirtualClock()
+    bus = Bus(clock, "packed-some", options=SessionOptions(isolated=True))
+    try:
+        log: list = []
+        bus.subscribe_batch(bus.keys.all, lambda data: log.append(("packed", data)), packed=True)
+        bus.subscribe(f"{bus.keys.root}/world/**", lambda k, p: log.append(("world", k, p)))
+        items = _items("packed-some", 30)
+        data = pack_batch(items)
+        bus.put_packed(data)
+        clock.run()
+        assert log == [("packed", data), ("world", *items[3])]  # each where its first sample stands
     finally:
         bus.close()
 
@@ -186,9 +207,6 @@ def test_another_process_gets_every_sample_under_its_own_key_in_order(how):
 
 
 def test_another_process_hands_a_packed_handler_the_bytes_as_they_were_put(monkeypatch):
-    def refuse(data):
-        raise AssertionError("unpacked with only packed handlers subscribed")
-
     fleet = f"batchpk{os.getpid()}"
     clock = WallClock()
     with _pair(fleet, clock) as (a, b):
@@ -197,7 +215,7 @@ def test_another_process_hands_a_packed_handler_the_bytes_as_they_were_put(monke
         b.subscribe_batch(b.keys.all, got.append, packed=True)
         b.subscribe_batch(f"{b.keys.root}/world/**", world.append, packed=True)
         _wait_route(a)
-        monkeypatch.setattr(transport, "unpack_batch", refuse)
+        _refuse_unpacking(monkeypatch)
         items = _items(fleet, 50)
         data = pack_batch(items)
         a.put_packed(data)

@@ -253,9 +253,12 @@ def test_packed_batches_leave_python_only_what_it_acts_on(tmp_path, monkeypatch)
     stream = [s for group in zip(records, frames, events * 10, light * 10) for s in group]
     python: list[str] = []
     lines: list[bytes] = []
-    write_one, rest = Recorder._write_one, FrameLog.rest
+    drawn_here: list[str] = []
+    write_one, rest, coil_change = Recorder._write_one, FrameLog.rest, Recorder._coil_change
     monkeypatch.setattr(Recorder, "_write_one", lambda self, route, *a: (python.append(route.topic),
                                                                          write_one(self, route, *a))[1])
+    monkeypatch.setattr(Recorder, "_coil_change", lambda self, key, *a: (drawn_here.append(key),
+                                                                         coil_change(self, key, *a))[1])
     monkeypatch.setattr(FrameLog, "rest", lambda self, payload, key: (lines.append(payload), rest(self, payload, key))[1])
     rec = _record(tmp_path / "p.mcap", stream, 500, packed=True)
     assert rec.tally.messages == len(stream)
@@ -271,6 +274,8 @@ def test_packed_batches_leave_python_only_what_it_acts_on(tmp_path, monkeypatch)
     # a module's first record, a port state no module had yet, or one of the 2 % odd ones: a
     # coil change whose bytes C knows feeds the scene without the careful path
     assert len(acted) <= 6 + tails + len(records) // 25 and len(acted) < coil_changes
+    # a coil change C knows how to draw (the module's look and these coils drawn once) is C's
+    assert len(drawn_here) < coil_changes // 2
     assert len(lines) == 3  # one describe text per kind of frame, every other line made in C
 
 
