@@ -405,6 +405,7 @@ class MotionJudge:
         self._dirty: set[str] = set()  # modules whose attempts a change may have reached
         self._near: dict[str, tuple[str, ...]] = {}  # module -> its neighbours' ids (cache)
         self._carriers: dict[str, int] = {}  # module -> uncarried flights its magnets hold up
+        self._carrying: dict[str, int] = {}  # substrate -> moves in flight on it
 
     # --- queries ------------------------------------------------------------------
     @property
@@ -478,22 +479,28 @@ class MotionJudge:
                     out.append(Fault(module, t_ns, Reason.BOTH_RELAYS,
                                      f"{module}: both relays of body side {int(s)} on",
                                      {"body_side": int(s)}))
-        self._update_attempts(mod, out)
-        if self.quick:
-            # This change reaches the verdicts of its own module and of its neighbours
-            # only: a verdict reads the state (magnets, solenoids, orientation) of the
-            # mobile and of modules beside it (substrate candidates, latches), nobody else's.
-            if module in self._carriers:
-                self._check_carry(out, module)
-            self._dirty.add(module)
-            trying = self._trying
-            near = self._near.get(module)
-            for nid in self._neighbours_of(mod) if near is None else near:
-                if nid in trying:
-                    self._dirty.add(nid)
-        else:
+        if not self.quick:
+            self._update_attempts(mod, out)
             self._check_carry(out)
-        self._evaluate_all(out)
+            self._evaluate_all(out)
+            return out
+        if mod.attempts or _pairs(mags):  # else no attempt to open or close
+            self._update_attempts(mod, out)
+        if module in self._carriers:
+            self._check_carry(out, module)
+        # This change reaches the verdicts of its own module and of its neighbours only: a
+        # verdict reads the state (magnets, solenoids, orientation) of the mobile and of the
+        # modules beside it (substrate candidates, latches), nobody else's. Only modules
+        # with an attempt have verdicts, and none while they move (their attempts are done).
+        dirty, trying, flights = self._dirty, self._trying, self._flights
+        if module in trying and module not in flights:
+            dirty.add(module)
+        near = self._near.get(module)
+        for nid in self._neighbours_of(mod) if near is None else near:
+            if nid in trying and nid not in flights:
+                dirty.add(nid)
+        if dirty:
+            self._evaluate_all(out)
         return out
 
     def advance(self, t_ns: int) -> list[Outcome]:
@@ -698,6 +705,13 @@ class MotionJudge:
             else:
                 del self._carriers[m]
 
+    def _unsupport(self, f: _Flight) -> None:
+        n = self._carrying[f.plan.substrate] - 1
+        if n:
+            self._carrying[f.plan.substrate] = n
+        else:
+            del self._carrying[f.plan.substrate]
+
     def _drive_broke(self, mod: _Module, a: _Attempt, verdict: Verdict) -> None:
         """The drive of ``a`` broke before break-away (``verdict`` says why): a world
         cause is the diagnosis (another module got there first); otherwise, if it had
@@ -734,18 +748,8 @@ class MotionJudge:
         """Is the rotation about ``pivot_body`` driven right now? The checks below, in
         this order: the first that refuses is the verdict; if none does, the drive's move."""
         t = _Trial(mod, pivot_body, Joint.of(pivot_body + mod.orientation))
-        for check in (
-            self._not_fixed,            # the fixed module never moves
-            self._no_relay_fight,       # the mobile's pair: no side with both relays on
-            self._not_a_substrate,      # nobody's move in flight pivots on the mobile
-            self._substrate_found,      # a module touches the pivot (the repelling one of two)
-            self._substrate_still,      # ... and is not itself moving
-            self._goal_free,            # Table 4-3's goal cell: no module, obstacle, reservation
-            self._sweep_free,           # ... and its sweep cells
-            self._substrate_polarity,   # the substrate repels the mobile and attracts it to the goal
-            self._latches_released,     # every latch open but the hinge at the pivot
-        ):
-            verdict = check(t)
+        for check in _CHECKS:
+            verdict = check(self, t)
             if verdict is not None:
                 return verdict
         assert t.sub is not None and t.rule is not None and t.goal is not None
@@ -766,6 +770,8 @@ class MotionJudge:
         return None
 
     def _not_a_substrate(self, t: _Trial) -> Verdict | None:
+        if self.quick and t.mod.id not in self._carrying:
+            return None  # the quick way counts the moves on each substrate
         for f in self._flights.values():
             if f.plan.substrate == t.mod.id:
                 return t.refuse(_R_SUPPORT, Reason.SUPPORTING_MOVE,
@@ -842,6 +848,8 @@ class MotionJudge:
         repel_b, attract_b = t.repel_body, t.attract_body = (sub.body_side(repel_g),
                                                              sub.body_side(attract_g))
         rv, av = sub.magnet(repel_g), sub.magnet(attract_g)
+        if rv == MAG_NEG and av == MAG_POS:
+            return None
         pol = {"substrate": sub.id, "repel_body_side": int(repel_b),
                "attract_body_side": int(attract_b), "repel": rv, "attract": av}
         if MAG_BOTH in (rv, av):
@@ -877,14 +885,14 @@ class MotionJudge:
         """Latches holding ``mod`` to its neighbours. Each shared edge (mod's global side
         s) has mod's pin at mod's vertex s+1 and the neighbour's pin at mod's vertex s."""
         found = []
-        for s, c in zip(Side, _around(mod.cell)):
-            nid = self._at.get(c)
-            if nid is None or nid in self._flights:  # a module in flight is swinging away
+        at, flights = self._at, self._flights
+        for (mine, mine_vertex, theirs, their_vertex), c in zip(_PINS, _around(mod.cell)):
+            nid = at.get(c)
+            if nid is None or nid in flights:  # a module in flight is swinging away
                 continue
             n = self._mods[nid]
-            pins = ((mod, latch_joint(s), Joint.of(s + 1)),  # (owner, owner's global joint, vertex of mod)
-                    (n, latch_joint(s + 3), Joint.of(s)))
-            for owner, owner_joint_g, vertex in pins:
+            # (owner, owner's global joint, vertex of mod)
+            for owner, owner_joint_g, vertex in ((mod, mine, mine_vertex), (n, theirs, their_vertex)):
                 if exempt_vertex == (nid, vertex):
                     continue  # the hinge on the rotation axis
                 if not owner.solenoid_open(owner_joint_g):
@@ -921,6 +929,7 @@ class MotionJudge:
         heapq.heappush(self._heap, (started + p.rotation_ns, 0, mod.id, mod.id, 0))
         heapq.heappush(self._heap, (started + p.carry_ns, 1, mod.id, mod.id, 0))
         self._hold(f, 1)
+        self._carrying[plan.substrate] = self._carrying.get(plan.substrate, 0) + 1
         self._touch((mod.cell, plan.goal, *plan.sweep), plan.substrate)
         out.append(MoveStarted(mod.id, self._now, started, mod.cell, plan.goal,
                                plan.rule.joint, plan.rule.direction, plan.substrate))
@@ -945,6 +954,7 @@ class MotionJudge:
             del self._flights[f.module]
             self._release(f.module)
             self._hold(f, -1)
+            self._unsupport(f)
             self._touch((f.from_cell, f.plan.goal, *f.plan.sweep), f.plan.substrate)
             out.append(Fault(f.module, self._now, Reason.STALLED,
                              f"{f.module}: attraction stopped {held / 1e6:.1f} ms into the "
@@ -963,6 +973,7 @@ class MotionJudge:
         self._release(f.module)
         if not f.carried:  # carry_ns == rotation_ns: the arrival came first
             self._hold(f, -1)
+        self._unsupport(f)
         before = mod.orientation
         del self._at[mod.cell]
         assert f.plan.goal not in self._at  # reserved since break-away
@@ -974,6 +985,23 @@ class MotionJudge:
         out.append(MoveCompleted(mod.id, self._now, f.started_ns, f.from_cell, mod.cell,
                                  f.plan.rule.joint, f.plan.rule.direction, before,
                                  mod.orientation, f.plan.substrate, f.participants))
+
+
+#: :meth:`MotionJudge._evaluate`'s checks, in their order
+_CHECKS = (
+    MotionJudge._not_fixed,            # the fixed module never moves
+    MotionJudge._no_relay_fight,       # the mobile's pair: no side with both relays on
+    MotionJudge._not_a_substrate,      # nobody's move in flight pivots on the mobile
+    MotionJudge._substrate_found,      # a module touches the pivot (the repelling one of two)
+    MotionJudge._substrate_still,      # ... and is not itself moving
+    MotionJudge._goal_free,            # Table 4-3's goal cell: no module, obstacle, reservation
+    MotionJudge._sweep_free,           # ... and its sweep cells
+    MotionJudge._substrate_polarity,   # the substrate repels the mobile and attracts it to the goal
+    MotionJudge._latches_released,     # every latch open but the hinge at the pivot
+)
+#: per global side s of a mobile: its own pin on that edge and the vertex it holds, the
+#: neighbour's pin (global joint) and its vertex (``_latches``)
+_PINS = tuple((latch_joint(s), Joint.of(s + 1), latch_joint(s + 3), Joint.of(s)) for s in Side)
 
 
 def _pol(v: int) -> str:
