@@ -64,8 +64,11 @@ _OUT_TX, _OUT_PORTS, _OUT_RX, _OUT_OVERRUN, _OUT_COLLISION = 1, 2, 3, 4, 5
 _LINKS = list(Link)
 #: what the core's frames say of their origin (Envelope's default, as frame_sample gave them)
 _ORIGIN = Envelope.__dataclass_fields__["origin"].default
-#: distinct frames whose parts Python remembers (each also in the core)
+#: distinct frames whose parts Python remembers (each also in the core); the others' parts
+#: serve one frame each
 _PARTS_MAX = 1 << 16
+#: core.c core_add_parts' uses
+_PARTS_KEPT, _PARTS_WHOLE, _PARTS_ONCE = 0, 1, 2
 #: core.c COIL_*: what a module's coil change means to the window
 _COIL_STOP, _COIL_MAGNETS, _COIL_FREE = 0, 1, 2
 #: out_t of core.c
@@ -435,11 +438,13 @@ class FleetCore:
         known = self._parts.get(key) if kind != "noise" else None
         if known is not None and (known[1] or not whole):
             return known[0]
+        keep = kind != "noise" and (known is not None or len(self._parts) < _PARTS_MAX)
         p0, p1, p2 = (x.encode() for x in frame_json_parts(frame.link.value, frame.raw, kind, frame.view))
         raw = frame.raw
-        pid = self.lib.core_add_parts(self._h, _LINKS.index(frame.link), raw, len(raw), int(whole),
+        pid = self.lib.core_add_parts(self._h, _LINKS.index(frame.link), raw, len(raw),
+                                      (_PARTS_WHOLE if whole else _PARTS_KEPT) if keep else _PARTS_ONCE,
                                       p0, len(p0), p1, len(p1), p2, len(p2))
-        if kind != "noise" and len(self._parts) < _PARTS_MAX:
+        if keep:
             self._parts[key] = (pid, whole)
         return pid
 

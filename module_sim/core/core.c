@@ -63,7 +63,11 @@ typedef struct {
     uint32_t n0, n1, n2;
     uint32_t link, rawn;
     uint8_t *raw;       /* whole-write key (NULL: not in the map) */
+    uint32_t once;      /* one frame's (PARTS_ONCE): freed when it is rendered */
 } parts_t;
+
+/* core_add_parts' `use` */
+enum { PARTS_KEPT = 0, PARTS_WHOLE = 1, PARTS_ONCE = 2 };
 
 typedef struct {
     char *key, *names0, *names1;
@@ -206,6 +210,8 @@ typedef struct {
     uint32_t *seq_of;       /* 2 per module: the next frame seq of its control, comm board */
     parts_t *parts;
     uint32_t parts_n, parts_cap;
+    uint32_t *parts_free;   /* ids of rendered PARTS_ONCE entries, for reuse */
+    uint32_t parts_free_n, parts_free_cap;
     uint32_t *pmap;         /* open addressing: parts id + 1 of (link, whole write); 0 empty */
     uint32_t pmap_cap, pmap_n;
     fq_t *fq;
@@ -740,6 +746,19 @@ static void buf_u64(buf_t *b, uint64_t v)
     buf_put(b, tmp + i, (size_t)(24 - i));
 }
 
+/* A PARTS_ONCE entry has served its frame: its slot is reused. */
+static void parts_done(core_t *c, uint32_t id)
+{
+    parts_t *p = &c->parts[id];
+    if (!p->once)
+        return;
+    free(p->s);
+    p->s = NULL;
+    p->once = 0;
+    GROW(c->parts_free, c->parts_free_n, c->parts_free_cap, 1);
+    c->parts_free[c->parts_free_n++] = id;
+}
+
 /* One frame's sample in pack_batch's layout: u16 key length, u32 payload length (LE), the key,
  * the envelope (bus.transport.frame_json: p0 names0 p1 t_last wall seq p2 first names1). */
 static void render_frame(core_t *c, const fq_t *f, uint64_t wall)
@@ -766,6 +785,7 @@ static void render_frame(core_t *c, const fq_t *f, uint64_t wall)
     buf_put(b, w->names1, w->n1);
     uint32_t len = (uint32_t)(b->n - start);
     memcpy(b->d + at + 2, &len, 4); /* little-endian hosts (x86, arm) */
+    parts_done(c, f->parts);
 }
 
 /* --- boards --------------------------------------------------------------------------------- */
@@ -1169,6 +1189,7 @@ void core_free(core_t *c)
         free(c->parts[i].raw);
     }
     free(c->parts);
+    free(c->parts_free);
     free(c->pmap);
     free(c->fq);
     for (uint32_t i = 0; i < c->n_fleets; i++)
@@ -1355,13 +1376,21 @@ void core_wire_empty(core_t *c, uint32_t m, uint32_t wire, uint32_t empty)
         c->wire_empty[(size_t)N_WIRES * m + wire] = (uint8_t)(empty != 0);
 }
 
-/* A frame's parts (p0, p1, p2 of bus.transport.frame_json); `whole`: a write of exactly `raw`
- * on an empty wire of `link` is this frame (the core renders it without Python). */
-uint32_t core_add_parts(core_t *c, uint32_t link, const uint8_t *raw, uint32_t rawn, uint32_t whole,
+/* A frame's parts (p0, p1, p2 of bus.transport.frame_json_parts). `use`: PARTS_KEPT, kept for
+ * the frames Python queues with them; PARTS_WHOLE, kept, and a write of exactly `raw` on an
+ * empty wire of `link` is this frame (the core renders it without Python); PARTS_ONCE, for one
+ * frame (noise, or more distinct frames than Python keeps), freed once it is rendered. */
+uint32_t core_add_parts(core_t *c, uint32_t link, const uint8_t *raw, uint32_t rawn, uint32_t use,
                         const char *p0, uint32_t n0, const char *p1, uint32_t n1, const char *p2, uint32_t n2)
 {
-    GROW(c->parts, c->parts_n, c->parts_cap, 1);
-    parts_t *p = &c->parts[c->parts_n];
+    uint32_t id;
+    if (use == PARTS_ONCE && c->parts_free_n) {
+        id = c->parts_free[--c->parts_free_n];
+    } else {
+        GROW(c->parts, c->parts_n, c->parts_cap, 1);
+        id = c->parts_n++;
+    }
+    parts_t *p = &c->parts[id];
     p->s = malloc((size_t)n0 + n1 + n2 + 1);
     if (!p->s)
         abort();
@@ -1374,11 +1403,12 @@ uint32_t core_add_parts(core_t *c, uint32_t link, const uint8_t *raw, uint32_t r
     p->link = link;
     p->rawn = rawn;
     p->raw = NULL;
-    if (whole) {
+    p->once = use == PARTS_ONCE;
+    if (use == PARTS_WHOLE) {
         p->raw = (uint8_t *)dup_n((const char *)raw, rawn);
-        pmap_put(c, c->parts_n);
+        pmap_put(c, id);
     }
-    return c->parts_n++;
+    return id;
 }
 
 /* A frame Python framed (a write it was handed, OUT_TX's `aux` its ordinal). */
@@ -1398,8 +1428,10 @@ uint32_t core_render_frames(core_t *c, uint64_t now)
     uint64_t wall = 0;
     while (c->fq_n && c->fq[0].t_last <= now) {
         fq_t f = fq_pop(c);
-        if (c->boards[2 * f.m].gone)
+        if (c->boards[2 * f.m].gone) {
+            parts_done(c, f.parts);
             continue;
+        }
         if (!n) {
             struct timespec ts;
             clock_gettime(CLOCK_REALTIME, &ts);
@@ -1432,9 +1464,12 @@ void core_fleet_out_clear(core_t *c, uint32_t f)
 void core_drop_frames(core_t *c, uint32_t first, uint32_t n)
 {
     uint32_t k = 0;
-    for (uint32_t i = 0; i < c->fq_n; i++)
+    for (uint32_t i = 0; i < c->fq_n; i++) {
         if (c->fq[i].m < first || c->fq[i].m >= first + n)
             c->fq[k++] = c->fq[i];
+        else
+            parts_done(c, c->fq[i].parts);
+    }
     uint32_t total = k;
     c->fq_n = 0;
     for (uint32_t i = 0; i < total; i++) /* re-heap (in place: push reads only below i) */

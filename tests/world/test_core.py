@@ -9,6 +9,7 @@ import json
 import pytest
 
 from bus.clock import VirtualClock, WallClock
+from bus.envelope import Envelope
 from bus.ir import Burst
 from bus.scenario import loads
 from bus.session import SessionOptions, open_session
@@ -79,6 +80,41 @@ def test_the_core_gives_the_python_paths_frames_and_the_pcs_bytes(n):
     light = _RX_LIGHT[-1]  # the core writes the PC's bursts itself: each is Burst.to_json's bytes
     assert len(light) > n
     assert all(Burst.from_dict(json.loads(p)).to_json() == p for p in light)
+
+
+def _rendered(kept: bool, monkeypatch) -> list[bytes]:
+    """A 12-module core run's frame samples (boot and one command)."""
+    import module_sim.core as core_module
+
+    monkeypatch.setattr(core_module, "_PARTS_MAX", 1 << 16 if kept else 0)
+    clock = VirtualClock()
+    session = open_session(SessionOptions(isolated=True))
+    bus = Bus(clock, f"render{int(kept)}", session=session)
+    payloads: list[bytes] = []
+    bus.subscribe(bus.keys.frames, lambda k, p: payloads.append(p))
+    try:
+        fleet = Fleet(bus, block_scenarios(12, "firmware")[0])
+        assert fleet.core is not None
+        pc = PcEndpoint(bus)
+        fleet.power_up()
+        clock.run(until_ns=9 * NS_PER_S)
+        pc.send("SxP", 2)
+        clock.run(until_ns=clock.now_ns() + 1_500_000_000)
+    finally:
+        bus.close()
+        session.close()
+    return payloads
+
+
+def test_the_frames_the_core_renders_are_envelope_json(monkeypatch):
+    """Every frame sample the core renders is Envelope.to_json's bytes, and with no frame's
+    parts kept (each frame's own, freed once rendered: a run with more distinct frames than
+    Python remembers) the same frames come out."""
+    kept, once = _rendered(True, monkeypatch), _rendered(False, monkeypatch)
+    assert len(kept) > 200
+    assert all(Envelope.from_json(p).to_json() == p for p in kept + once)
+    timeless = lambda p: p[:p.index(b',"wall_time_ns"')] + p[p.index(b',"seq"'):]  # noqa: E731
+    assert list(map(timeless, kept)) == list(map(timeless, once))
 
 
 def test_the_fleet_says_why_it_leaves_the_core():
