@@ -66,14 +66,19 @@ def ensure_fresh(target: str) -> None:
     with _build_lock:
         if target in _fresh or not (FIRMWARE_DIR / "Makefile").exists() or shutil.which("make") is None:
             return
-        make = ["make", "-s", "-C", str(FIRMWARE_DIR), f"PYTHON={sys.executable}", target]
-        if subprocess.run(make[:1] + ["-q"] + make[2:], capture_output=True).returncode != 0:
-            r = subprocess.run(make, capture_output=True, text=True)
-            if r.returncode != 0:
-                tail = (r.stderr or r.stdout).strip().splitlines()[-1:] or ["(no output)"]
-                raise FirmwareError(f"make -C {FIRMWARE_DIR} {target} failed (its sources changed since "
-                                    f"the last build): {tail[0]}")
+        if subprocess.run(["make", "-q", "-C", str(FIRMWARE_DIR), f"PYTHON={sys.executable}", target],
+                          capture_output=True).returncode != 0:
+            _make(target, why=" (its sources changed since the last build)")
         _fresh.add(target)
+
+
+def _make(*targets: str, why: str = "") -> None:
+    """``make -C firmware [targets]``; FirmwareError with make's last line if it fails."""
+    r = subprocess.run(["make", "-s", "-C", str(FIRMWARE_DIR), f"PYTHON={sys.executable}", *targets],
+                       capture_output=True, text=True)
+    if r.returncode != 0:
+        tail = (r.stderr or r.stdout).strip().splitlines()[-1:] or ["(no output)"]
+        raise FirmwareError(f"make -C {FIRMWARE_DIR}{''.join(' ' + t for t in targets)} failed{why}: {tail[0]}")
 
 
 def ensure_built() -> None:
@@ -91,11 +96,7 @@ def ensure_built() -> None:
         if shutil.which("avr-gcc") is None:
             raise FirmwareError("the firmware is not built and avr-gcc is not installed: install "
                                 "gcc-avr avr-libc simavr libsimavr-dev (.ci/system, or make test)")
-        r = subprocess.run(["make", "-s", "-C", str(FIRMWARE_DIR), f"PYTHON={sys.executable}"],
-                           capture_output=True, text=True)
-        if r.returncode != 0:
-            tail = (r.stderr or r.stdout).strip().splitlines()[-1:] or ["(no output)"]
-            raise FirmwareError(f"make -C {FIRMWARE_DIR} failed: {tail[0]}")
+        _make()
 
 
 F_CPU = 1_000_000

@@ -147,6 +147,11 @@ class Framer:
         return out
 
     @property
+    def idle(self) -> bool:
+        """Nothing held: the next byte starts a frame (no bytes waiting, no noise to emit)."""
+        return not self._buf and not self._noise
+
+    @property
     def pending(self) -> bytes:
         return bytes(self._noise + self._buf)
 

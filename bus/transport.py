@@ -778,14 +778,12 @@ def _envelope_json(e: Envelope) -> bytes:
         if len(_FRAME_PARTS) >= _FRAME_PARTS_MAX:
             _FRAME_PARTS.clear()
         parts = _FRAME_PARTS[key] = frame_json_parts(e.link, e.raw, e.kind, e.view)
-    names = _NAMES.get((e.src, e.dst, e.origin))
+    names = _NAMES.get((e.src, e.dst, e.origin, e.channel))
     if names is None:
-        names = _NAMES[(e.src, e.dst, e.origin)] = (_dumps(e.src) + ',"dst":' + _dumps(e.dst),
-                                                      ',"origin":' + _dumps(e.origin) + ',"channel":')
+        names = _NAMES[(e.src, e.dst, e.origin, e.channel)] = frame_json_names(e.src, e.dst, e.origin, e.channel)
     first = "null" if e.first_byte_ns is None else e.first_byte_ns
-    channel = "null" if e.channel is None else e.channel
     return (f'{parts[0]}{names[0]}{parts[1]}{e.sim_time_ns},"wall_time_ns":{e.wall_time_ns},'
-            f'"seq":{e.seq}{parts[2]}{first}{names[1]}{channel},"v":{SCHEMA_VERSION}}}').encode()
+            f'"seq":{e.seq}{parts[2]}{first}{names[1]}').encode()
 
 
 def frame_json_parts(link: str, raw: bytes, kind: str, view: Any) -> tuple[str, str, str]:
@@ -807,4 +805,4 @@ def frame_json_names(src: str, dst: str, origin: str, channel: int | None) -> tu
 #: the JSON of each frame's fixed parts, by (link, bytes); bounded (a fuzz run makes millions)
 _FRAME_PARTS: dict[tuple[str, bytes], tuple[str, str, str]] = {}
 _FRAME_PARTS_MAX = 1 << 16
-_NAMES: dict[tuple[str, str, str], tuple[str, str]] = {}
+_NAMES: dict[tuple[str, str, str, int | None], tuple[str, str]] = {}

@@ -239,10 +239,6 @@ class VirtualModule:
         """Corrections of the IR medium that came after their byte's stop bit (IrReceiver)."""
         return self._ir_in.conflicts
 
-    def core_wire(self, wire: int, data: bytes, starts: list[int], byte_ns: int) -> None:
-        """Bytes the core put on one of this module's wires (numbered as in core.c)."""
-        self._core_wires[wire](data, starts, byte_ns)
-
     def core_ports(self, ports: bytes) -> None:
         """Both boards' ports (control PORTA..PORTE, then comm) after the programs in the
         core wrote them (the core publishes the record: :meth:`publish_actuators`)."""

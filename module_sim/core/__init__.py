@@ -243,7 +243,6 @@ class FleetCore:
         self._timer_at = _NO_TIME
         # frames: the core renders and queues them (core.c "frames"); Python frames a write it
         # was handed (a frame it does not know whole, a wire whose framer holds bytes)
-        self._writing: tuple[int, int, int] = (0, 0, 0)  # (module, wire, ordinal) being framed
         self._framed: list[tuple[int, Any, int]] = []  # its frames: (t_last, frame, first)
         self._parts: dict[tuple[str, bytes], tuple[int, bool]] = {}  # -> (core parts id, whole)
         self._fids = itertools.count()
@@ -301,9 +300,10 @@ class FleetCore:
         self._publish_frames(self.clock.now_ns())
         self._flush()
         if fleet.modules:
-            self.lib.core_drop_frames(self._h, fleet.modules[0].core_index, len(fleet.modules))
-        if fleet.modules and self.lib.core_remove_modules(self._h, fleet.modules[0].core_index, len(fleet.modules)):
-            raise FirmwareError("the fleet core refused to remove a fleet's modules")
+            first, n = fleet.modules[0].core_index, len(fleet.modules)
+            self.lib.core_drop_frames(self._h, first, n)
+            if self.lib.core_remove_modules(self._h, first, n):
+                raise FirmwareError("the fleet core refused to remove a fleet's modules")
         for r in [r for r, (f, _, _) in self._rx.items() if f is fleet]:
             if r in fleet.external_rx.values():
                 self.lib.core_remove_receiver(self._h, r)
@@ -418,10 +418,10 @@ class FleetCore:
         from an empty framer (the framer's own cache of whole writes, taught to the core)."""
         pub = self.modules[m]._core_wires[wire]  # type: ignore[union-attr]
         framer = pub.framer
-        was_empty = not framer._buf and not framer._noise
+        was_empty = framer.idle
         self._framed.clear()
         pub(data, starts, byte_ns)
-        empty = not framer._buf and not framer._noise
+        empty = framer.idle
         framed = self._framed
         whole = was_empty and empty and len(framed) == 1 and framed[0][1].raw == data
         lib, h = self.lib, self._h

@@ -746,6 +746,14 @@ static void buf_u64(buf_t *b, uint64_t v)
     buf_put(b, tmp + i, (size_t)(24 - i));
 }
 
+static void wire_clear(wire_t *w)
+{
+    free(w->key);
+    free(w->names0);
+    free(w->names1);
+    w->key = w->names0 = w->names1 = NULL;
+}
+
 /* A PARTS_ONCE entry has served its frame: its slot is reused. */
 static void parts_done(core_t *c, uint32_t id)
 {
@@ -838,7 +846,7 @@ static void replay(core_t *c, uint32_t b)
         }
         uint64_t ordinal = c->ordinal++;
         size_t wi = (size_t)N_WIRES * m + (uint32_t)wire;
-        if (c->wire_empty[wi] && c->wires) {
+        if (c->wire_empty[wi]) {
             /* a whole frame Python's framer knows: rendered here when its last byte ends */
             int32_t parts = parts_find(c, c->wires[wi].link, data, n);
             if (parts >= 0) {
@@ -1175,11 +1183,8 @@ void core_free(core_t *c)
     free(c->module_rx);
     free(c->ports_dirty);
     free(c->coil_rule);
-    for (size_t i = 0; i < (size_t)N_WIRES * c->n_modules; i++) {
-        free(c->wires[i].key);
-        free(c->wires[i].names0);
-        free(c->wires[i].names1);
-    }
+    for (size_t i = 0; i < (size_t)N_WIRES * c->n_modules; i++)
+        wire_clear(&c->wires[i]);
     free(c->wires);
     free(c->wire_empty);
     free(c->fleet_of);
@@ -1355,9 +1360,7 @@ void core_set_wire(core_t *c, uint32_t m, uint32_t wire, uint32_t fleet, uint32_
         c->n_fleets = fleet + 1;
     }
     wire_t *w = &c->wires[(size_t)N_WIRES * m + wire];
-    free(w->key);
-    free(w->names0);
-    free(w->names1);
+    wire_clear(w);
     w->key = dup_n(key, keyn);
     w->names0 = dup_n(names0, n0);
     w->names1 = dup_n(names1, n1);
